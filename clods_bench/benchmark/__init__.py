@@ -1,0 +1,1 @@
+"""The core: plugin manager, interfaces, configuration, runner, tasks, metrics and tables."""

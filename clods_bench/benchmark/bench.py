@@ -1,0 +1,30 @@
+"""Speed benchmarks printed as numbers and ratios against targets measured in the same run."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.table import Table
+
+SOLVER_TARGET_S = 60.0  # 400 steps of the 1579-node flag on 2 cores
+RASTER_TARGET_MS = 20.0  # one 128x128 view of that mesh
+
+
+def bench_data(console: Console, steps: int = 400, views: int = 8) -> dict[str, float]:
+    """Time the ground-truth cloth solver and rasterizer on the FLAGSIMPLE-size flag."""
+    from clods_bench.datasets.raster_bench import bench_rasterizer
+    from clods_bench.datasets.solver_bench import bench_solver
+
+    with console.status(f"cloth solver: {steps} steps of the 1579-node flag ..."):
+        solver = bench_solver(num_steps=steps, resolution="flagsimple")
+    with console.status(f"rasterizer: {views} views at 128x128 ..."):
+        raster = bench_rasterizer(num_views=views, size=128)
+    per400 = solver["seconds_per_step"] * 400
+    table = Table(title="clods-bench bench data (1579-node flag, this machine)")
+    for col in ("what", "measured", "target", "measured / target"):
+        table.add_column(col, justify="right")
+    table.add_row("solver steps / s", f"{solver['steps_per_second']:.2f}", f"{400 / SOLVER_TARGET_S:.2f}", "")
+    table.add_row("solver: 400 steps (s)", f"{per400:.1f}", f"{SOLVER_TARGET_S:.0f}", f"{per400 / SOLVER_TARGET_S:.2f}")
+    table.add_row("solver: simulated / wall time", f"{solver.get('realtime_factor', float('nan')):.2f}", "", "")
+    table.add_row("rasterizer ms / 128x128 view", f"{raster['ms_per_view']:.2f}", f"{RASTER_TARGET_MS:.0f}", f"{raster['ms_per_view'] / RASTER_TARGET_MS:.2f}")
+    console.print(table)
+    return {"solver_seconds_per_400": per400, "raster_ms_per_view": raster["ms_per_view"]}

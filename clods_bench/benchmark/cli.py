@@ -1,0 +1,214 @@
+"""The `clods-bench` command line: list, data, run, tables, bench."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from rich.console import Console
+from rich.table import Table
+
+from clods_bench.errors import ClodsError
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+def _add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--preset", default="ci", help="built-in preset: ci, small, paper (default: ci)")
+    p.add_argument("--config", type=Path, help="YAML file merged over the preset (may name `preset:`)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override a config field, e.g. data.num_train=8")
+    p.add_argument("--scene", help="scene name (same as --set data.scene=NAME)")
+    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="clods-bench", description="Benchmark for learning cloth dynamics from multi-view video.")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("list", help="plugins, scenes, tasks and presets")
+    p.set_defaults(func=cmd_list)
+
+    data = sub.add_parser("data", help="generate, import and export datasets")
+    dsub = data.add_subparsers(dest="data_command", required=True)
+    p = dsub.add_parser("generate", help="simulate and render a scene's dataset (resumable)")
+    _add_config_args(p)
+    p.add_argument("--force", action="store_true", help="delete an existing dataset with these settings first")
+    p.set_defaults(func=cmd_data_generate)
+    p = dsub.add_parser("import-flagsimple", help="convert the real FLAGSIMPLE release (meta.json + TFRecord)")
+    p.add_argument("source", type=Path, help="directory with meta.json and <split>.tfrecord")
+    p.add_argument("--split", default="train")
+    p.add_argument("--limit", type=int, default=None, help="number of trajectories to convert")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
+    p.set_defaults(func=cmd_data_import)
+    p = dsub.add_parser("export", help="write a stored trajectory as an OBJ/PLY sequence")
+    _add_config_args(p)
+    p.add_argument("--traj", type=int, default=0)
+    p.add_argument("--format", choices=("obj", "ply"), default="obj")
+    p.add_argument("--out", type=Path, required=True)
+    p.set_defaults(func=cmd_data_export)
+
+    p = sub.add_parser("run", help="run a task: cdg, ...")
+    p.add_argument("task", help="task name")
+    p.add_argument("--sim", help="simulator plugin")
+    p.add_argument("--renderer", help="renderer plugin")
+    p.add_argument("--label", help="row label in the tables")
+    p.add_argument("--train-subset", choices=("all", "first_half"), help="training trajectories: all (MGN) or first half (MGN*)")
+    p.add_argument("--seeds", type=int, nargs="+", help="seeds (default from the preset)")
+    _add_config_args(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
+    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--out", type=Path, default=Path("tables"))
+    p.add_argument("--task", default="cdg")
+    p.set_defaults(func=cmd_tables)
+
+    p = sub.add_parser("bench", help="speed benchmarks")
+    p.add_argument("what", choices=("data",), help="data: cloth solver and ground-truth rasterizer")
+    p.add_argument("--steps", type=int, default=400, help="solver steps to time")
+    p.add_argument("--views", type=int, default=8, help="views to render")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def _registry():
+    from clods_bench.benchmark.registry import default_registry
+
+    return default_registry()
+
+
+def _config(args: argparse.Namespace, **fields):
+    from clods_bench.benchmark.config import load_config
+
+    overrides = list(args.overrides)
+    if getattr(args, "scene", None):
+        overrides.insert(0, f"data.scene={args.scene}")
+    if getattr(args, "no_progress", False):
+        overrides.append("progress=false")
+    return load_config(args.preset, args.config, overrides, **fields)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.config import preset_description, preset_names
+
+    reg = _registry()
+    table = Table(title="clods-bench: what is installed")
+    for col in ("kind", "name", "description", "from"):
+        table.add_column(col)
+    for kind in ("task", "simulator", "renderer", "scene"):
+        for name in reg.names(kind):
+            table.add_row(kind, name, reg.get(kind, name).description, reg.origins[(kind, name)])
+    for name in preset_names():
+        table.add_row("preset", name, preset_description(name), "built-in")
+    console.print(table)
+    return 0
+
+
+def cmd_data_generate(args: argparse.Namespace) -> int:
+    from clods_bench.datasets.generate import generate
+
+    cfg = _config(args)
+    scene = _registry().get("scene", cfg.data.scene)
+    store = generate(cfg.data, scene, progress=cfg.progress, force=args.force)
+    console.print(f"dataset: {store.root} ({len(store)} trajectories)")
+    return 0
+
+
+def cmd_data_import(args: argparse.Namespace) -> int:
+    from clods_bench.datasets.flagsimple import import_flagsimple
+
+    store = import_flagsimple(args.source, args.out, split=args.split, limit=args.limit)
+    console.print(f"imported into {store.root} ({len(store)} trajectories)")
+    return 0
+
+
+def cmd_data_export(args: argparse.Namespace) -> int:
+    from clods_bench.datasets.meshes import export_sequence
+    from clods_bench.datasets.store import DatasetStore
+
+    cfg = _config(args)
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    paths = export_sequence(store.load_trajectory(args.traj), args.out, args.format)
+    console.print(f"wrote {len(paths)} {args.format.upper()} files to {args.out}")
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.records import RECORD_FILE
+    from clods_bench.benchmark.runner import run_task
+
+    cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
+    rdir = run_task(cfg, _registry(), err_console)
+    import json
+
+    rec = json.loads((rdir / RECORD_FILE).read_text())
+    table = Table(title=f"{rec['task']} / {rec['label']} / {rec['scene']} / preset {rec['preset']} ({len(rec['seeds'])} seeds)")
+    table.add_column("metric")
+    table.add_column("mean ± std", justify="right")
+    for key, v in sorted(rec["metrics"].items(), key=lambda kv: _metric_order(kv[0])):
+        table.add_row(key, _pm(v))
+    for key, v in rec["timings"].items():
+        table.add_row(f"[dim]{key}[/dim]", _pm(v))
+    console.print(table)
+    console.print(f"record: {rdir}")
+    return 0
+
+
+def _metric_order(key: str) -> tuple:
+    """Sort 'group/phase/stat' keys in the paper's column order."""
+    from clods_bench.benchmark.metrics import GROUPS, PHASES, STATS
+
+    order = {name: i for i, name in enumerate((*GROUPS, *PHASES, *STATS))}
+    return tuple(order.get(part, 99) for part in key.split("/")) + (key,)
+
+
+def _pm(v: dict) -> str:
+    if v["mean"] is None:
+        return "n/a"
+    return f"{v['mean']:.4g} ± {v['std']:.2g}"
+
+
+def cmd_tables(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.tables import write_tables
+
+    paths = write_tables(args.runs, args.out, args.task)
+    for p in paths:
+        if p.suffix == ".md":
+            console.print(p.read_text())
+    console.print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.bench import bench_data
+
+    bench_data(console, steps=args.steps, views=args.views)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ClodsError as exc:
+        if args.debug:
+            raise
+        err_console.print(f"[bold red]error:[/bold red] {exc.message}", highlight=False)
+        return 2
+    except KeyboardInterrupt:
+        err_console.print("interrupted; finished work is kept and the next run resumes")
+        return 130
+    except Exception as exc:  # an internal error: short message unless --debug
+        if args.debug:
+            raise
+        err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} (rerun with --debug for the traceback)", highlight=False)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

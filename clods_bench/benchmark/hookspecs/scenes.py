@@ -1,0 +1,19 @@
+"""Hook specification: scene plugins (cloth set-ups the data generator can simulate)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Sequence
+
+from clods_bench.benchmark.hookspecs import hookspec
+
+if TYPE_CHECKING:
+    from clods_bench.datasets.scenes import SceneSpec
+
+
+@hookspec
+def clods_bench_scenes() -> Sequence["SceneSpec"]:
+    """Return the scenes this plugin provides (`clods_bench.datasets.scenes.SceneSpec`).
+
+    A scene declares what it has (obstacles, wind, lighting, handles) so that
+    simulators, renderers and tasks leave out what it does not need.
+    """

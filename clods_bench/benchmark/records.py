@@ -1,0 +1,117 @@
+"""Run records: one directory per (task, label, config) with per-seed results and an aggregate.
+
+Layout: `<runs_dir>/<task>/<label>/<scene>-<preset>-<hash>/` holding `config.yaml`
+(resolved config), `seed_<k>/result.json` (one per finished seed; the run resumes by
+skipping these) and `record.json` (all seeds, mean +- std, timings, versions, commit).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Iterator
+
+from clods_bench.atomic import write_json
+from clods_bench.benchmark.config import RunConfig
+from clods_bench.benchmark.descriptors import TaskResult
+from clods_bench.benchmark.environment import git_commit, package_versions
+from clods_bench.benchmark.metrics import mean_std
+from clods_bench.errors import ClodsError
+
+RESULT_FILE = "result.json"
+RECORD_FILE = "record.json"
+
+
+def default_label(cfg: RunConfig) -> str:
+    """Row label: explicit label, else the plugin name(s), '*' marking the first-half training subset."""
+    if cfg.label:
+        return cfg.label
+    parts = [p for p in (cfg.sim, cfg.renderer) if p]
+    label = "+".join(parts) or cfg.task
+    return label + ("*" if cfg.train_subset == "first_half" else "")
+
+
+def record_dir(cfg: RunConfig) -> Path:
+    """Deterministic record directory: the same config (seeds aside) resumes into the same place."""
+    ident = cfg.to_dict()
+    for key in ("seeds", "progress", "runs_dir"):
+        ident.pop(key)
+    ident["data"].pop("root")
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:8]
+    slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg).replace("*", "-star"))
+    return Path(cfg.runs_dir) / cfg.task / slug / f"{cfg.data.scene}-{cfg.preset}-{digest}"
+
+
+def seed_result_path(rdir: Path, seed: int) -> Path:
+    return rdir / f"seed_{seed}" / RESULT_FILE
+
+
+def load_seed_result(rdir: Path, seed: int) -> dict[str, Any] | None:
+    """A finished seed's result, or None when it has not finished (or its file is unreadable)."""
+    path = seed_result_path(rdir, seed)
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        return None  # a torn file cannot happen with atomic writes; treat anything odd as unfinished
+
+
+def save_seed_result(rdir: Path, seed: int, result: TaskResult) -> dict[str, Any]:
+    payload = {"seed": seed, **asdict(result), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    write_json(seed_result_path(rdir, seed), payload)
+    return json.loads(json.dumps(payload, default=str))
+
+
+def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], extra_timings: dict[str, float]) -> dict[str, Any]:
+    """Write `record.json`: mean +- std over seeds of every metric and timing, plus provenance."""
+    seeds = sorted(per_seed)
+    metric_keys = sorted({k for r in per_seed.values() for k in r["metrics"]})
+    timing_keys = sorted({k for r in per_seed.values() for k in r["timings"]})
+
+    def stats(section: str, key: str) -> dict[str, float]:
+        values = [_num(per_seed[s][section].get(key)) for s in seeds]
+        m, sd = mean_std(values)
+        return {"mean": m, "std": sd}
+
+    record = {
+        "task": cfg.task,
+        "label": default_label(cfg),
+        "sim": cfg.sim,
+        "renderer": cfg.renderer,
+        "scene": cfg.data.scene,
+        "preset": cfg.preset,
+        "seeds": seeds,
+        "metrics": {k: stats("metrics", k) for k in metric_keys},
+        "timings": {k: stats("timings", k) for k in timing_keys},
+        "run_timings": extra_timings,
+        "per_seed": {str(s): {"metrics": per_seed[s]["metrics"], "timings": per_seed[s]["timings"], "extra": per_seed[s].get("extra", {})} for s in seeds},
+        "config": cfg.to_dict(),
+        "versions": package_versions(),
+        "commit": git_commit(),
+        "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }
+    write_json(rdir / RECORD_FILE, record)
+    return record
+
+
+def iter_records(runs_dir: Path, task: str | None = None) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """Every readable `record.json` under `runs_dir` (optionally of one task), sorted by path."""
+    root = Path(runs_dir)
+    if not root.is_dir():
+        raise ClodsError("runs directory not found", where=str(root))
+    for path in sorted(root.rglob(RECORD_FILE)):
+        try:
+            rec = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ClodsError(f"malformed record JSON at line {exc.lineno}: {exc.msg}", where=str(path)) from None
+        if task is None or rec.get("task") == task:
+            yield path.parent, rec
+
+
+def _num(value: Any) -> float:
+    return float("nan") if value is None else float(value)

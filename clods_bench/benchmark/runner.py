@@ -1,0 +1,70 @@
+"""Run a task over its seeds: check plugins, make sure the data exists, resume finished seeds, aggregate."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from rich.console import Console
+
+from clods_bench.benchmark.config import RunConfig, save_config
+from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.records import aggregate, load_seed_result, record_dir, save_seed_result
+from clods_bench.benchmark.registry import Registry
+from clods_bench.errors import ClodsError
+
+
+def check_plugins(cfg: RunConfig, registry: Registry) -> None:
+    """Fail before any work if the task, scene or a needed plugin is unknown or missing."""
+    task = registry.get("task", cfg.task)
+    registry.get("scene", cfg.data.scene)
+    if "sim" in task.needs:
+        if not cfg.sim:
+            raise ClodsError(f"task '{cfg.task}' needs a simulator", where="--sim", hint=f"one of {registry.names('simulator')}")
+        spec = registry.get("simulator", cfg.sim)
+        spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
+    if "renderer" in task.needs:
+        if not cfg.renderer:
+            raise ClodsError(f"task '{cfg.task}' needs a renderer", where="--renderer", hint=f"one of {registry.names('renderer')}")
+        spec = registry.get("renderer", cfg.renderer)
+        spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
+
+
+def run_task(
+    cfg: RunConfig,
+    registry: Registry,
+    console: Console | None = None,
+    ensure_data: Callable[[RunConfig, Registry, bool], object] | None = None,
+) -> Path:
+    """Run every seed of `cfg.task` not already finished; return the record directory."""
+    console = console or Console(stderr=True)
+    check_plugins(cfg, registry)
+    task = registry.get("task", cfg.task)
+    rdir = record_dir(cfg)
+    rdir.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, rdir / "config.yaml")
+
+    run_timings: dict[str, float] = {}
+    if ensure_data is None:
+        from clods_bench.datasets.generate import ensure_dataset as ensure_data
+    t0 = time.perf_counter()
+    ensure_data(cfg, registry, cfg.progress)
+    run_timings["data_seconds"] = time.perf_counter() - t0
+
+    per_seed = {}
+    for seed in cfg.seeds:
+        done = load_seed_result(rdir, seed)
+        if done is not None:
+            console.print(f"[dim]seed {seed}: finished earlier, reusing {rdir / f'seed_{seed}'}[/dim]")
+            per_seed[seed] = done
+            continue
+        console.print(f"[bold]{cfg.task}[/bold] seed {seed} ({rdir})")
+        work = rdir / f"seed_{seed}"
+        work.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))
+        result.timings.setdefault("seed_seconds", time.perf_counter() - t0)
+        per_seed[seed] = save_seed_result(rdir, seed, result)
+    aggregate(cfg, rdir, per_seed, run_timings)
+    return rdir

@@ -1,0 +1,1 @@
+"""The benchmark tasks; `builtin` registers them through the entry-point group."""

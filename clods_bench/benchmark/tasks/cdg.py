@@ -1,0 +1,85 @@
+"""Cloth dynamics grounding (CDG): train a simulator, roll it out, score RMSE in the paper's Table 2 columns."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rich.progress import Progress
+
+from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
+from clods_bench.benchmark.interfaces import FitContext, RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
+from clods_bench.datasets.splits import SplitSpec
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import ClodsError
+
+
+def split_spec(ctx: TaskContext) -> SplitSpec:
+    """The paper's splits scaled to this run's data config."""
+    d = ctx.config.data
+    return SplitSpec(
+        num_train=d.num_train,
+        num_test=d.num_test,
+        num_steps=d.num_steps,
+        interp_steps=d.interp_steps,
+        num_views_train=d.num_cameras - d.num_views_test,
+        num_views_test=d.num_views_test,
+    )
+
+
+def build_simulator(ctx: TaskContext) -> Simulator:
+    """Build the configured simulator plugin for this seed."""
+    cfg = ctx.config
+    spec = ctx.registry.get("simulator", cfg.sim)
+    sim_cfg = spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
+    scene = ctx.registry.get("scene", cfg.data.scene)
+    sim = spec.build(sim_cfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
+    if not isinstance(sim, Simulator):
+        raise ClodsError("plugin did not return a Simulator (needs fit() and rollout())", where=f"simulator '{cfg.sim}'")
+    return sim
+
+
+def run_cdg(ctx: TaskContext) -> TaskResult:
+    """One seed of CDG: fit on the training meshes' interpolation frames, roll out viewed and unviewed trajectories."""
+    cfg = ctx.config
+    splits = split_spec(ctx)
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    sim = build_simulator(ctx)
+
+    train_ids = splits.train if cfg.train_subset == "all" else splits.first_half
+    train = [store.load_trajectory(i).slice(0, splits.interp_steps + 1) for i in train_ids]
+    t0 = time.perf_counter()
+    fit_stats = sim.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress))
+    fit_seconds = time.perf_counter() - t0
+
+    groups = {"viewed": list(splits.viewed), "unviewed": list(splits.unviewed)}
+    curves: dict[str, list[np.ndarray]] = {g: [] for g in groups}
+    diverged: dict[str, int] = {}
+    infer_seconds, infer_steps = 0.0, 0
+    total = sum(len(v) for v in groups.values())
+    with Progress(transient=True, disable=not cfg.progress) as bar:
+        job = bar.add_task(f"rollouts ({cfg.sim})", total=total)
+        for group, ids in groups.items():
+            for i in ids:
+                traj = store.load_trajectory(i)
+                inp = RolloutInput.from_trajectory(traj, splits.num_steps)
+                t1 = time.perf_counter()
+                pred = check_rollout(sim.rollout(inp), inp, cfg.sim or "?")
+                infer_seconds += time.perf_counter() - t1
+                infer_steps += inp.num_frames - 2
+                step = divergence_step(pred)
+                if step is not None:
+                    diverged[f"{group}/{i}"] = step
+                curves[group].append(rmse_per_step(pred, traj.world_pos[: splits.num_steps]))
+                bar.advance(job)
+
+    metrics = cdg_columns(curves, splits.interp_steps, splits.num_steps)
+    timings = {
+        "fit_seconds": fit_seconds,
+        "infer_ms_per_step": 1000.0 * infer_seconds / max(infer_steps, 1),
+        "infer_seconds": infer_seconds,
+    }
+    timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
+    mean_curves = {g: np.mean(np.stack(c), axis=0).tolist() for g, c in curves.items() if c}
+    return TaskResult(metrics=metrics, timings=timings, curves=mean_curves, extra={"diverged": diverged, "train_ids": list(train_ids)})

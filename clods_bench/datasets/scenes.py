@@ -1,0 +1,198 @@
+"""Named cloth scenes (flag, stiff, storm, large time step, cylinder) and their simulation.
+
+A scene fixes the physics and the ranges its trajectories are drawn from; `simulate_scene`
+draws one trajectory's initial pose, initial velocity and wind from a seed, so a dataset is
+reproducible trajectory by trajectory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
+from clods_bench.datasets.meshes import make_cylinder_mesh, make_flag_mesh, make_flagsimple_mesh
+from clods_bench.datasets.types import NORMAL, ClothMesh, Trajectory
+from clods_bench.errors import ClodsError, unknown_name
+
+Resolution = tuple[int, int] | str
+_CYLINDER_FLAGSIMPLE = (48, 33)  # 1584 nodes, close to FLAGSIMPLE's 1579
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A named scene: physics, time step, what it contains, and per-trajectory random ranges."""
+
+    name: str
+    description: str  # one line
+    kind: Literal["flag", "cylinder"]
+    params: SolverParams
+    dt: float = 0.02
+    substeps: int = 1
+    has_obstacles: bool = False
+    has_wind: bool = True
+    has_lighting: bool = False
+    has_handles: bool = True
+    size: tuple[float, float] = (2.0, 1.0)  # flag (length, height) or cylinder (radius, height), metres
+    default_resolution: Resolution = "flagsimple"  # flag (nx, ny) | "flagsimple"; cylinder (n_around, n_along)
+    rotation_range: tuple[float, float] = (-0.6, 0.6)  # initial rotation about the pole/tube axis, rad
+    init_speed_range: tuple[float, float] = (0.0, 1.0)  # initial velocity of the free end, m/s
+    perturb_amplitude: float = 0.05  # largest smooth out-of-plane initial displacement, m
+    wind_speed_range: tuple[float, float] = (6.0, 10.0)  # mean wind speed, m/s
+    wind_direction_spread: float = 0.35  # azimuth of the wind is +x +- this, rad
+
+    def build_mesh(self, resolution: Resolution | None = None) -> ClothMesh:
+        """The scene's cloth mesh: flag (nx, ny) | "flagsimple"; cylinder (n_around, n_along) | "flagsimple".
+
+        For the cylinder "flagsimple" means a tube of about the FLAGSIMPLE size (48 x 33 = 1584 nodes).
+        """
+        res = self.default_resolution if resolution is None else resolution
+        if self.kind == "flag":
+            if isinstance(res, str):
+                if res != "flagsimple":
+                    raise ClodsError(f"unknown resolution '{res}'; use 'flagsimple' or (nx, ny)", where=f"scene {self.name}")
+                return make_flagsimple_mesh(*self.size)
+            return make_flag_mesh(int(res[0]), int(res[1]), *self.size)
+        if isinstance(res, str):
+            if res != "flagsimple":
+                raise ClodsError(f"unknown resolution '{res}'; use 'flagsimple' or (n_around, n_along)", where=f"scene {self.name}")
+            res = _CYLINDER_FLAGSIMPLE
+        return make_cylinder_mesh(int(res[0]), int(res[1]), *self.size)
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _vertex_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals."""
+    fn = np.cross(x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]])
+    vn = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(vn, cells[:, k], fn)
+    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+
+
+def initial_state(scene: SceneSpec, mesh: ClothMesh, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Random initial positions and velocities: rotation about the axis, smooth bend, free-end velocity."""
+    rest = np.asarray(mesh.rest_pos, dtype=np.float64)
+    handles = mesh.node_type != NORMAL
+    anchor = rest[handles] if handles.any() else rest
+    axis_xy = np.array([*anchor[:, :2].mean(axis=0), 0.0])
+    angle = float(rng.uniform(*scene.rotation_range))
+    x0 = (rest - axis_xy) @ _rotation_z(angle).T + axis_xy
+    # weight 0 at the handles growing to 1 at the farthest node (in rest space)
+    if handles.any():
+        dist = np.min(np.linalg.norm(rest[:, None, :] - anchor[None, :, :], axis=2), axis=1)
+    else:
+        dist = np.ones(rest.shape[0])
+    w = dist / max(float(dist.max()), 1e-12)
+    span = float(np.ptp(mesh.mesh_pos, axis=0).max())
+    k = rng.uniform(0.5, 1.5, 2) * 2.0 * math.pi / span
+    phase = rng.uniform(0.0, 2.0 * math.pi, 2)
+    amp = float(rng.uniform(0.0, scene.perturb_amplitude))
+    bump = np.sin(mesh.mesh_pos[:, 0] * k[0] + phase[0]) * np.cos(mesh.mesh_pos[:, 1] * k[1] + phase[1])
+    x0 += (amp * w * bump)[:, None] * _vertex_normals(x0, mesh.cells)
+    speed = float(rng.uniform(*scene.init_speed_range))
+    direction = rng.standard_normal(3)
+    vel = speed * direction / max(float(np.linalg.norm(direction)), 1e-12)
+    v0 = w[:, None] * vel[None, :]
+    v0[handles] = 0.0
+    meta = {"rotation": angle, "perturb_amplitude": amp, "initial_velocity": vel.tolist()}
+    return x0, v0, meta
+
+
+def draw_wind(scene: SceneSpec, rng: np.random.Generator) -> tuple[SolverParams, dict]:
+    """The scene's params with this trajectory's mean wind (speed and azimuth drawn from the ranges)."""
+    if not scene.has_wind:
+        return scene.params, {"wind_velocity": list(scene.params.wind_velocity), "wind_speed": 0.0, "wind_azimuth": 0.0}
+    speed = float(rng.uniform(*scene.wind_speed_range))
+    azimuth = float(rng.uniform(-scene.wind_direction_spread, scene.wind_direction_spread))
+    wind = (speed * math.cos(azimuth), speed * math.sin(azimuth), 0.0)
+    meta = {"wind_velocity": list(wind), "wind_speed": speed, "wind_azimuth": azimuth}
+    return dataclasses.replace(scene.params, wind_velocity=wind), meta
+
+
+def simulate_scene(scene: SceneSpec, mesh: ClothMesh, num_steps: int, seed: int, progress: bool = False) -> Trajectory:
+    """Simulate one trajectory of `num_steps` frames (frame 0 = initial state) drawn from `seed`."""
+    if int(num_steps) < 2:
+        raise ClodsError(f"num_steps must be >= 2, got {num_steps}", where=f"scene {scene.name}")
+    rng = np.random.default_rng(seed)
+    x0, v0, meta_init = initial_state(scene, mesh, rng)
+    params, meta_wind = draw_wind(scene, rng)
+    solver_seed = int(rng.integers(0, 2**31 - 1))
+    solver = ClothSolver(mesh, params, scene.dt, seed=solver_seed)
+
+    def report(frame: int, total: int) -> None:
+        if frame == total - 1 or frame % max(total // 10, 1) == 0:
+            print(f"scene {scene.name} seed {seed}: frame {frame + 1}/{total}", file=sys.stderr, flush=True)
+
+    start = time.perf_counter()
+    world_pos = solver.simulate(x0, v0, int(num_steps), scene.substeps, progress=report if progress else None)
+    seconds = time.perf_counter() - start
+    steps = max(int(solver.stats["steps"]), 1)
+    meta = {
+        "scene": scene.name,
+        "kind": scene.kind,
+        "seed": int(seed),
+        "solver_seed": solver_seed,
+        "dt": scene.dt,
+        "substeps": scene.substeps,
+        **meta_init,
+        **meta_wind,
+        "turbulence_amplitude": params.turbulence_amplitude,
+        "turbulence_time_scale": params.turbulence_time_scale,
+        "sim_seconds": seconds,
+        "cg_iterations_per_step": float(solver.stats["cg_iterations"]) / steps,
+    }
+    traj = Trajectory(mesh.cells, mesh.mesh_pos, mesh.node_type, world_pos, scene.dt, meta)
+    traj.validate(f"scene {scene.name} seed {seed}")
+    return traj
+
+
+_FLAG = SolverParams(
+    turbulence_amplitude=1.5, turbulence_time_scale=1.0, wind_ramp_time=0.5, air_drag=0.02, damping_stiffness=1e-3
+)
+
+BUILTIN_SCENES: tuple[SceneSpec, ...] = (
+    SceneSpec("flag", "FLAGSIMPLE-like flag pinned on its pole, fluttering in moderate turbulent wind", "flag", _FLAG),
+    SceneSpec(
+        "flag-stiff", "the flag with membrane and bending 50x stiffer (stiff implicit system)", "flag", _FLAG.scaled(50.0, 50.0)
+    ),
+    SceneSpec(
+        "flag-storm",
+        "the flag in extreme gusty wind: large deformation and self-occlusion",
+        "flag",
+        dataclasses.replace(_FLAG, turbulence_amplitude=5.0, turbulence_time_scale=0.5),
+        wind_speed_range=(14.0, 20.0),
+        wind_direction_spread=0.8,
+        init_speed_range=(0.0, 3.0),
+    ),
+    SceneSpec("flag-large-dt", "the flag integrated with a 0.05 s time step", "flag", _FLAG, dt=0.05),
+    SceneSpec(
+        "cylinder",
+        "an open tube of cloth hanging from its pinned top ring, swaying in wind (shape generalisation)",
+        "cylinder",
+        dataclasses.replace(_FLAG, turbulence_amplitude=0.5),
+        size=(0.3, 1.0),
+        default_resolution=(32, 16),
+        perturb_amplitude=0.005,
+        wind_speed_range=(0.5, 2.0),
+        wind_direction_spread=math.pi,
+    ),
+)
+
+
+def get_scene(name: str) -> SceneSpec:
+    """The built-in scene called `name` (ClodsError with a suggestion if unknown)."""
+    for scene in BUILTIN_SCENES:
+        if scene.name == name:
+            return scene
+    raise unknown_name("scene", name, [s.name for s in BUILTIN_SCENES])

@@ -1,0 +1,40 @@
+"""Speed benchmark of the ground-truth cloth solver on the default flag scene."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from clods_bench.datasets.cloth_solver import ClothSolver
+from clods_bench.datasets.scenes import Resolution, draw_wind, get_scene, initial_state
+
+
+def bench_solver(num_steps: int = 400, resolution: Resolution = "flagsimple", seed: int = 0) -> dict:
+    """Time `num_steps` solver steps of the `flag` scene (after one untimed warm-up step for JIT)."""
+    scene = get_scene("flag")
+    mesh = scene.build_mesh(resolution)
+    rng = np.random.default_rng(seed)
+    x, v, _ = initial_state(scene, mesh, rng)
+    params, _ = draw_wind(scene, rng)
+    solver = ClothSolver(mesh, params, scene.dt, seed=seed)
+    solver.step(x, v, 0.0)  # compile / load the numba kernels outside the timing
+    solver.stats.update(cg_iterations=0, steps=0)
+    start = time.perf_counter()
+    t = 0.0
+    for _ in range(num_steps):
+        x, v = solver.step(x, v, t)
+        t += scene.dt
+    total = time.perf_counter() - start
+    return {
+        "scene": scene.name,
+        "resolution": resolution if isinstance(resolution, str) else list(resolution),
+        "num_nodes": mesh.num_nodes,
+        "num_faces": mesh.num_faces,
+        "num_steps": int(num_steps),
+        "total_seconds": total,
+        "seconds_per_step": total / max(num_steps, 1),
+        "steps_per_second": num_steps / total if total > 0 else float("inf"),
+        "cg_iterations_per_step": solver.stats["cg_iterations"] / max(num_steps, 1),
+        "finite": bool(np.isfinite(x).all()),
+    }

@@ -1,0 +1,1 @@
+"""Built-in plugins (simulators, renderers, the CloDS pipeline), registered through entry points."""

@@ -1,0 +1,216 @@
+"""Numba kernels of the fast CPU splatting backend (float64 throughout; nothing compiles at import).
+
+Layout: per camera, Gaussians are visited in ascending depth and appended to every tile their
+bounding box touches (`bin_gaussians`), so each tile's list is already depth sorted. Forward and
+backward run one tile per parallel iteration; inside a tile each Gaussian only visits the pixels of
+its own bounding box (it is invisible elsewhere by construction of the opacity-aware radii), with
+per-pixel state for the front-to-back order. The compositing rules are exactly those of
+`reference.py` (3DGS / gsplat). The backward pass walks each tile back to front from the stored final
+transmittance and last-contributor count (3DGS algorithm) and writes each Gaussian's per-tile
+gradient into its own row of a per-intersection buffer, which `reduce_grads` sums per Gaussian:
+no two threads ever write the same memory, and results do not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+BOX_MARGIN = 1e-3  # px; guards the per-Gaussian pixel box against rounding at its exact edge
+N_GRAD = 10  # per-intersection gradient row: mean2d (2), conic (3), colour (3), opacity, depth
+
+
+@njit(cache=True, nogil=True)
+def bin_gaussians(bounds, order, tiles_x, tiles_y):
+    """Tile lists: offsets (C*ty*tx+1,) into ids (n_isect,) of Gaussians, each list in depth order."""
+    C, G = order.shape
+    per_cam = tiles_x * tiles_y
+    offsets = np.zeros(C * per_cam + 1, dtype=np.int64)
+    for c in range(C):
+        for k in range(G):
+            g = order[c, k]
+            for ty in range(bounds[c, g, 1], bounds[c, g, 3]):
+                for tx in range(bounds[c, g, 0], bounds[c, g, 2]):
+                    offsets[c * per_cam + ty * tiles_x + tx + 1] += 1
+    for t in range(C * per_cam):
+        offsets[t + 1] += offsets[t]
+    fill = offsets[:-1].copy()
+    ids = np.empty(offsets[-1], dtype=np.int32)
+    for c in range(C):
+        for k in range(G):
+            g = order[c, k]
+            for ty in range(bounds[c, g, 1], bounds[c, g, 3]):
+                for tx in range(bounds[c, g, 0], bounds[c, g, 2]):
+                    t = c * per_cam + ty * tiles_x + tx
+                    ids[fill[t]] = g
+                    fill[t] += 1
+    return offsets, ids
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pixel_box(mean, r, lo, hi):
+    """Inclusive pixel index range [i0, i1] within [lo, hi) whose centres lie within r of mean."""
+    a = max(float(lo), math.ceil(mean - r - BOX_MARGIN - 0.5))
+    b = min(float(hi - 1), math.floor(mean + r + BOX_MARGIN - 0.5))
+    return int(a), int(b)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _alpha(px, py, mx, my, a, b, c, o):
+    """(alpha, sigma, dx, dy, unclamped) at pixel centre (px, py); alpha 0 means skipped."""
+    dx = px - mx
+    dy = py - my
+    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+    if sigma < 0.0:
+        return 0.0, sigma, dx, dy, False
+    raw = o * math.exp(-sigma)
+    alpha = min(ALPHA_MAX, raw)
+    if alpha < ALPHA_MIN:
+        return 0.0, sigma, dx, dy, False
+    return alpha, sigma, dx, dy, raw <= ALPHA_MAX
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def raster_fwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width, height, tile, tiles_x, tiles_y,
+               out_rgb, out_alpha, out_depth, t_final, n_last):  # fmt: skip
+    """Front-to-back compositing of every tile; fills the outputs and the state the backward needs."""
+    per_cam = tiles_x * tiles_y
+    for t in prange(offsets.shape[0] - 1):
+        cam, rem = t // per_cam, t % per_cam
+        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
+        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        tw = x1 - x0
+        npx = tw * (y1 - y0)
+        T = np.ones(npx)
+        acc = np.zeros((npx, 4))
+        last = np.zeros(npx, dtype=np.int32)
+        done = np.zeros(npx, dtype=np.bool_)
+        n_done = 0
+        start = offsets[t]
+        for k in range(start, offsets[t + 1]):
+            if n_done == npx:
+                break
+            g = ids[k]
+            mx, my = means2d[cam, g, 0], means2d[cam, g, 1]
+            a, b, c, o = conics[cam, g, 0], conics[cam, g, 1], conics[cam, g, 2], opac[cam, g]
+            i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
+            j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    p = (j - y0) * tw + (i - x0)
+                    if done[p]:
+                        continue
+                    alpha, _, _, _, _ = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
+                    if alpha == 0.0:
+                        continue
+                    nt = T[p] * (1.0 - alpha)
+                    if nt < T_MIN:
+                        done[p] = True
+                        n_done += 1
+                        continue
+                    w = alpha * T[p]
+                    acc[p, 0] += w * colors[cam, g, 0]
+                    acc[p, 1] += w * colors[cam, g, 1]
+                    acc[p, 2] += w * colors[cam, g, 2]
+                    acc[p, 3] += w * depths[cam, g]
+                    T[p] = nt
+                    last[p] = k - start + 1
+        for p in range(npx):
+            j, i = y0 + p // tw, x0 + p % tw
+            out_rgb[cam, j, i, 0] = acc[p, 0]
+            out_rgb[cam, j, i, 1] = acc[p, 1]
+            out_rgb[cam, j, i, 2] = acc[p, 2]
+            out_alpha[cam, j, i] = 1.0 - T[p]
+            out_depth[cam, j, i] = acc[p, 3]
+            t_final[cam, j, i] = T[p]
+            n_last[cam, j, i] = last[p]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def raster_bwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width, height, tile, tiles_x, tiles_y,
+               t_final, n_last, v_rgb, v_alpha, v_depth, g_isect):  # fmt: skip
+    """Back-to-front gradient pass; row k of g_isect (n_isect, N_GRAD) gets intersection k's gradient."""
+    per_cam = tiles_x * tiles_y
+    for t in prange(offsets.shape[0] - 1):
+        cam, rem = t // per_cam, t % per_cam
+        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
+        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        tw = x1 - x0
+        npx = tw * (y1 - y0)
+        T = np.empty(npx)
+        T_end = np.empty(npx)
+        last = np.empty(npx, dtype=np.int32)
+        vc = np.empty((npx, 5))  # d loss / d (r, g, b, alpha, depth) of each pixel
+        suffix = np.zeros((npx, 4))  # sum over later Gaussians of (colour, depth) * w
+        kmax = 0
+        for p in range(npx):
+            j, i = y0 + p // tw, x0 + p % tw
+            T[p] = t_final[cam, j, i]
+            T_end[p] = T[p]
+            last[p] = n_last[cam, j, i]
+            kmax = max(kmax, last[p])
+            for ch in range(3):
+                vc[p, ch] = v_rgb[cam, j, i, ch]
+            vc[p, 3] = v_alpha[cam, j, i]
+            vc[p, 4] = v_depth[cam, j, i]
+        gm = np.empty(N_GRAD)
+        start = offsets[t]
+        for kk in range(kmax - 1, -1, -1):
+            k = start + kk
+            g = ids[k]
+            mx, my = means2d[cam, g, 0], means2d[cam, g, 1]
+            a, b, c, o = conics[cam, g, 0], conics[cam, g, 1], conics[cam, g, 2], opac[cam, g]
+            cr, cg, cb, z = colors[cam, g, 0], colors[cam, g, 1], colors[cam, g, 2], depths[cam, g]
+            i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
+            j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
+            gm[:] = 0.0
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    p = (j - y0) * tw + (i - x0)
+                    if kk >= last[p]:
+                        continue
+                    alpha, sigma, dx, dy, unclamped = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
+                    if alpha == 0.0:
+                        continue
+                    inv = 1.0 / (1.0 - alpha)
+                    Ti = T[p] * inv  # transmittance in front of this Gaussian
+                    T[p] = Ti
+                    w = alpha * Ti
+                    gm[5] += w * vc[p, 0]
+                    gm[6] += w * vc[p, 1]
+                    gm[7] += w * vc[p, 2]
+                    gm[9] += w * vc[p, 4]
+                    v_a = (vc[p, 0] * (cr * Ti - suffix[p, 0] * inv) + vc[p, 1] * (cg * Ti - suffix[p, 1] * inv)
+                           + vc[p, 2] * (cb * Ti - suffix[p, 2] * inv) + vc[p, 4] * (z * Ti - suffix[p, 3] * inv)
+                           + vc[p, 3] * T_end[p] * inv)  # fmt: skip
+                    suffix[p, 0] += cr * w
+                    suffix[p, 1] += cg * w
+                    suffix[p, 2] += cb * w
+                    suffix[p, 3] += z * w
+                    if unclamped:
+                        vis = math.exp(-sigma)
+                        gm[8] += vis * v_a
+                        v_s = -o * vis * v_a  # d loss / d sigma
+                        gm[0] -= v_s * (a * dx + b * dy)
+                        gm[1] -= v_s * (b * dx + c * dy)
+                        gm[2] += v_s * 0.5 * dx * dx
+                        gm[3] += v_s * dx * dy
+                        gm[4] += v_s * 0.5 * dy * dy
+            for q in range(N_GRAD):
+                g_isect[k, q] = gm[q]
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def reduce_grads(offsets, ids, g_isect, per_cam, out):
+    """Sum per-intersection gradient rows into out (C,G,N_GRAD); one camera per parallel iteration."""
+    for cam in prange(out.shape[0]):
+        for t in range(cam * per_cam, (cam + 1) * per_cam):
+            for k in range(offsets[t], offsets[t + 1]):
+                g = ids[k]
+                for q in range(N_GRAD):
+                    out[cam, g, q] += g_isect[k, q]

@@ -1,0 +1,117 @@
+"""The one entry point every Gaussian renderer plugin calls: `render_gaussians` -> `RenderOutput`.
+
+Pipeline: validate -> EWA projection (torch) -> per-view colours (RGB or SH) -> tile bounds ->
+rasterize with the chosen backend -> background and depth normalisation (torch). Gradients reach
+means, covars, opacities, colours (and a background tensor) through autograd on the torch parts and
+the backend's backward on the rasterization.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from clods_bench.datasets.cameras import Camera
+from clods_bench.plugins.splatting.checks import (
+    background_tensor,
+    check_cameras,
+    check_device,
+    check_gaussians,
+    check_options,
+)
+from clods_bench.plugins.splatting.projection import EPS2D, project_gaussians, tile_bounds
+from clods_bench.plugins.splatting.sh import sh_degree_of, view_colors
+
+Backend = Literal["cpu", "reference", "gsplat"]
+DepthMode = Literal["expected", "accumulated"]
+
+
+@dataclass
+class RenderOutput:
+    """Rendered images of C cameras (H x W) of G Gaussians."""
+
+    rgb: Tensor  # (C,H,W,3) colour composited over the background
+    alpha: Tensor  # (C,H,W,1) accumulated opacity sum_i w_i = 1 - final transmittance
+    depth: Tensor  # (C,H,W,1) camera-z depth: sum_i w_i z_i / alpha ('expected') or sum_i w_i z_i ('accumulated')
+    radii: Tensor  # (C,G) int32 bounding-box half size in px (max over x, y); 0 = culled in that view
+
+
+def camera_tensors(cameras: Sequence[Camera], dtype: torch.dtype = torch.float64) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Stacked (C,3,3) K, (C,3,3) R, (C,3) t and (C,3) camera centres."""
+    Ks = torch.tensor(np.stack([np.asarray(c.K, float) for c in cameras]), dtype=dtype)
+    Rs = torch.tensor(np.stack([np.asarray(c.R, float) for c in cameras]), dtype=dtype)
+    ts = torch.tensor(np.stack([np.asarray(c.t, float) for c in cameras]), dtype=dtype)
+    centers = -torch.einsum("cji,cj->ci", Rs, ts)  # -R^T t
+    return Ks, Rs, ts, centers
+
+
+def render_gaussians(
+    means: Tensor,  # (G,3) world-space centres
+    covars: Tensor,  # (G,3,3) world-space covariances (PSD; flat / rank-deficient allowed)
+    opacities: Tensor,  # (G,) in [0,1]
+    colors: Tensor,  # (G,3) RGB, or (G,K,3) SH coefficients
+    cameras: Sequence[Camera],
+    *,
+    sh_degree: int | None = None,
+    background: Sequence[float] | Tensor = (1.0, 1.0, 1.0),
+    backend: Backend = "cpu",
+    near: float = 0.01,
+    tile: int = 16,
+    depth_mode: DepthMode = "expected",
+) -> RenderOutput:
+    """Differentiably splat 3D Gaussians into every camera (3DGS rules, 0.3 px dilation, 1/255 skip).
+
+    Args:
+        means, covars, opacities, colors: the Gaussians, shapes above; NaN/inf -> ClodsError.
+        cameras: C cameras sharing one image size (OpenCV convention, see datasets.cameras).
+        sh_degree: SH degree for (G,K,3) colours (default sqrt(K)-1); must be None for RGB.
+        background: (3,) or (C,3) colour behind the Gaussians; a tensor gets gradients.
+        backend: 'cpu' (numba, fast), 'reference' (plain torch, slow oracle) or 'gsplat' (CUDA).
+        near: Gaussians with camera z <= near are culled.
+        tile: tile size in pixels for binning (results do not depend on it).
+        depth_mode: 'expected' divides the accumulated depth by alpha (gsplat 'ED'; 0 where alpha is 0),
+            'accumulated' returns sum_i w_i z_i (gsplat 'D').
+
+    Returns:
+        RenderOutput with rgb, alpha, depth (C,H,W,.) and radii (C,G) in the dtype of `means`.
+    """
+    check_options(backend, near, tile, depth_mode)
+    G = check_gaussians(means, covars, opacities, colors)
+    check_device(means, backend)
+    degree = sh_degree_of(colors, sh_degree)
+    width, height = check_cameras(cameras)
+    dtype = means.dtype
+    bg = background_tensor(background, len(cameras), dtype)
+    Ks, Rs, ts, centers = camera_tensors(cameras)
+    if backend == "gsplat":
+        from clods_bench.plugins.splatting.gsplat_backend import render_gsplat
+
+        rgb, alpha, depth, radii = render_gsplat(
+            means, covars, opacities, colors, Ks, Rs, ts, width, height, degree, bg, near, tile, depth_mode
+        )
+        return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=radii)
+
+    proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
+    rgb_cg = view_colors(colors, means, centers, degree).to(dtype)  # (C,G,3)
+    opac_cg = opacities[None].expand(len(cameras), G)  # (C,G)
+    bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)
+    if backend == "cpu":
+        from clods_bench.plugins.splatting.fast_cpu import rasterize_fast
+
+        color, alpha, dacc = rasterize_fast(
+            proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, proj.radii, bounds, width, height, tile
+        )
+    else:
+        from clods_bench.plugins.splatting.reference import rasterize_reference
+
+        color, alpha, dacc = rasterize_reference(
+            proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, bounds, width, height, tile
+        )
+    rgb = color + (1.0 - alpha) * bg[:, None, None, :]
+    depth = dacc / alpha.clamp(min=1e-10) if depth_mode == "expected" else dacc
+    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=proj.radii.max(dim=-1).values)

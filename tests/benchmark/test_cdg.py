@@ -1,0 +1,84 @@
+"""The CDG task end to end on the tiny dataset, checked against an independent numpy computation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clods_bench.benchmark.interfaces import RolloutInput
+from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.runner import run_task
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import NORMAL, Trajectory
+from clods_bench.errors import ClodsError
+from clods_bench.plugins.simulators.baselines import ConstantVelocity
+from tests.conftest import tiny_config
+
+
+def _independent_constvel_rmse(world_pos: np.ndarray, node_type: np.ndarray) -> np.ndarray:
+    """Constant-velocity rollout and per-frame RMSE written out longhand."""
+    pred = world_pos.astype(np.float64).copy()
+    free = node_type == NORMAL
+    for t in range(2, len(pred)):
+        pred[t, free] = pred[t - 1, free] + (pred[t - 1, free] - pred[t - 2, free])
+    err = pred - world_pos
+    return np.array([np.sqrt((e**2).sum() / e.size) for e in err])
+
+
+def test_constvel_cdg_matches_independent_numbers(tiny_root: Path, tmp_path: Path) -> None:
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / 'runs'}", sim="constvel")
+    rdir = run_task(cfg, default_registry())
+    rec = json.loads((rdir / RECORD_FILE).read_text())
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    viewed = [store.load_trajectory(1)]  # num_train=2: second half = trajectory 1
+    unviewed = [store.load_trajectory(2)]
+    for group, trajs in (("viewed", viewed), ("unviewed", unviewed)):
+        curves = np.stack([_independent_constvel_rmse(t.world_pos, t.node_type) for t in trajs])
+        assert rec["metrics"][f"{group}/interp/d_avg"]["mean"] == pytest.approx(curves[:, 2:9].mean(), rel=1e-5)
+        assert rec["metrics"][f"{group}/interp/d_end"]["mean"] == pytest.approx(curves[:, 8].mean(), rel=1e-5)
+        assert rec["metrics"][f"{group}/extrap/d_avg"]["mean"] == pytest.approx(curves[:, 9:12].mean(), rel=1e-5)
+        assert rec["metrics"][f"{group}/extrap/d_end"]["mean"] == pytest.approx(curves[:, 11].mean(), rel=1e-5)
+    assert (rdir / "config.yaml").is_file()
+    assert rec["versions"]["numpy"] and "data_seconds" in rec["run_timings"]
+
+
+def test_constvel_is_exact_on_uniform_motion() -> None:
+    cells = np.array([[0, 1, 2]], np.int32)
+    mesh_pos = np.array([[0, 0], [1, 0], [0, 1]], np.float32)
+    node_type = np.array([3, 0, 0], np.int32)
+    t = np.arange(6, dtype=np.float32)[:, None, None]
+    world = np.zeros((6, 3, 3), np.float32) + np.array([0.1, -0.2, 0.3], np.float32) * t
+    world[:, 0] = 0.0  # the handle stays put
+    traj = Trajectory(cells, mesh_pos, node_type, world, 0.02)
+    pred = ConstantVelocity().rollout(RolloutInput.from_trajectory(traj))
+    np.testing.assert_allclose(pred, world, atol=1e-5)
+
+
+def test_rollout_input_hides_the_answer() -> None:
+    cells = np.array([[0, 1, 2]], np.int32)
+    traj = Trajectory(cells, np.zeros((3, 2), np.float32), np.array([3, 0, 0], np.int32), np.ones((5, 3, 3), np.float32), 0.02)
+    inp = RolloutInput.from_trajectory(traj)
+    assert np.isnan(inp.kinematic_pos[:, 1:]).all() and np.isfinite(inp.kinematic_pos[:, 0]).all()
+
+
+def test_run_resumes_finished_seeds(tiny_root: Path, tmp_path: Path) -> None:
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / 'runs'}", sim="frozen")
+    rdir = run_task(cfg, default_registry())
+    first = (rdir / "seed_0" / "result.json").read_text()
+    cfg2 = tiny_config(tiny_root, f"runs_dir={tmp_path / 'runs'}", "seeds=[0, 1]", sim="frozen")
+    assert run_task(cfg2, default_registry()) == rdir
+    assert (rdir / "seed_0" / "result.json").read_text() == first  # reused, not recomputed
+    rec = json.loads((rdir / RECORD_FILE).read_text())
+    assert rec["seeds"] == [0, 1]
+    assert rec["metrics"]["viewed/interp/d_avg"]["std"] == pytest.approx(0.0, abs=1e-12)  # deterministic baseline
+
+
+def test_missing_sim_and_unknown_plugin(tiny_root: Path, tmp_path: Path) -> None:
+    with pytest.raises(ClodsError, match="needs a simulator"):
+        run_task(tiny_config(tiny_root, f"runs_dir={tmp_path}"), default_registry())
+    with pytest.raises(ClodsError, match="did you mean 'constvel'"):
+        run_task(tiny_config(tiny_root, f"runs_dir={tmp_path}", sim="constvl"), default_registry())

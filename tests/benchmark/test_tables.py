@@ -1,0 +1,48 @@
+"""Tables from records: paper layout, markdown/LaTeX/CSV, values equal to the records."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.tables import fmt_cell, write_tables
+from clods_bench.errors import ClodsError
+from tests.conftest import tiny_config
+
+
+def test_tables_from_two_runs(tiny_root: Path, tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    recs = {}
+    for sim in ("constvel", "frozen"):
+        rdir = run_task(tiny_config(tiny_root, f"runs_dir={runs}", sim=sim), default_registry())
+        recs[sim] = json.loads((rdir / RECORD_FILE).read_text())
+    paths = write_tables(runs, tmp_path / "tables")
+    assert sorted(p.suffix for p in paths) == [".csv", ".md", ".tex"]
+    md = next(p for p in paths if p.suffix == ".md").read_text()
+    assert "Viewed / Interpolation / d(t=8)" in md and "Unviewed / Extrapolation / d(t=11)" in md
+    csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
+    assert list(csv["method"]) == ["constvel", "frozen"]
+    for sim in ("constvel", "frozen"):
+        row = csv[csv["method"] == sim].iloc[0]
+        assert row["unviewed/extrap/d_avg/mean"] == pytest.approx(recs[sim]["metrics"]["unviewed/extrap/d_avg"]["mean"])
+    tex = next(p for p in paths if p.suffix == ".tex").read_text()
+    assert "\\begin{table}" in tex and "Viewed" in tex
+
+
+def test_no_records_is_a_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "runs").mkdir()
+    with pytest.raises(ClodsError, match="no 'cdg' run records"):
+        write_tables(tmp_path / "runs", tmp_path / "t")
+    with pytest.raises(ClodsError, match="not found"):
+        write_tables(tmp_path / "nope", tmp_path / "t")
+
+
+def test_fmt_cell() -> None:
+    assert fmt_cell(0.12934, 0.0241) == "0.1293 ± 0.0241"
+    assert fmt_cell(float("nan"), 0.0, diverged=17) == "diverged@17"
