@@ -99,6 +99,8 @@ class RunConfig:
     """Options per simulator name, loaded into that plugin's config dataclass."""
     renderer_config: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Options per renderer name, loaded into that plugin's config dataclass."""
+    task_config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Options per task name, loaded by that task into its config dataclass (e.g. nvs.frame_stride)."""
     runs_dir: str = "runs"
     """Directory of run records."""
     progress: bool = True

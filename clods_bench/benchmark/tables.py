@@ -67,6 +67,148 @@ def cdg_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
     return display, pd.DataFrame(numeric_rows)
 
 
+NVS_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 3 reports SSIM x10 and LPIPS x1000
+    ("psnr", "PSNR (dB) ↑", 1.0, 4),
+    ("ssim", "SSIM×10 ↑", 10.0, 3),
+    ("lpips", "LPIPS×1000 ↓", 1000.0, 2),
+)
+
+
+def _lpips_reasons(rec: dict[str, Any]) -> list[str]:
+    return sorted({r for s in rec.get("per_seed", {}).values() if (r := s.get("extra", {}).get("lpips_unavailable"))})
+
+
+def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame in the paper's Table 3 layout, numeric frame for CSV, footnotes); rows are renderers.
+
+    A record without LPIPS gets 'unavailable [k]' in its LPIPS cell, footnote k saying why.
+    """
+    display_rows, numeric_rows, index, notes = [], [], [], []
+    for rec in records:
+        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
+        for key, name, scale, digits in NVS_COLUMNS:
+            col = key if scale == 1.0 else f"{key}_x{scale:g}"  # CSV holds the scaled numbers shown
+            m = rec["metrics"].get(key)
+            if m is None or m["mean"] is None:
+                reasons = _lpips_reasons(rec) if key == "lpips" else []
+                marks = []
+                for reason in reasons or ["not recorded"]:
+                    if reason not in notes:
+                        notes.append(reason)
+                    marks.append(f"[{notes.index(reason) + 1}]")
+                row[("Quality", name)] = "unavailable " + "".join(marks)
+                num[f"{col}/mean"] = num[f"{col}/std"] = float("nan")
+            else:
+                row[("Quality", name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
+                num[f"{col}/mean"], num[f"{col}/std"] = scale * m["mean"], scale * (m["std"] or 0.0)
+        t = rec["timings"]
+        render = t.get("render_ms_per_frame", {}).get("mean", float("nan"))
+        fit = t.get("fit_seconds", {}).get("mean", float("nan"))
+        row[("Time", "render ms/frame")] = f"{render:.3g}"
+        row[("Time", "fit s")] = f"{fit:.3g}"
+        num["render_ms_per_frame"], num["fit_seconds"] = render, fit
+        display_rows.append(row)
+        numeric_rows.append(num)
+        index.append(rec["label"])
+    display = pd.DataFrame(display_rows, index=pd.Index(index, name="Model"))
+    display.columns = pd.MultiIndex.from_tuples(display.columns)
+    return display, pd.DataFrame(numeric_rows), [f"[{k + 1}] {n}" for k, n in enumerate(notes)]
+
+
+def nvs_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
+    """Caption of the NVS table: what is scored, over how many seeds, and the footnotes."""
+    seeds = sorted({len(r["seeds"]) for r in records})
+    text = (
+        f"Dynamic-scene novel-view synthesis ({scene}, preset {preset}); held-out cameras; mean ± std over "
+        f"{'/'.join(map(str, seeds))} seeds; render ms per image (one view, one frame)."
+    )
+    return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
+
+
+def _divergence_cell(rec: dict[str, Any]) -> tuple[str, float, str]:
+    """('stable' | 'frame k (n/N rollouts): reason', first failing frame or NaN, its reason) over every seed's rollouts."""
+    failed, rollouts = [], 0
+    for seed in rec.get("per_seed", {}).values():
+        extra = seed.get("extra", {})
+        rollouts += int(extra.get("rollouts", 0))
+        for key, frame in extra.get("diverged", {}).items():
+            failed.append((int(frame), str(extra.get("reasons", {}).get(key, "diverged"))))
+    if not failed:
+        return "stable", float("nan"), ""
+    frame, reason = min(failed)
+    return f"frame {frame} ({len(failed)}/{rollouts} rollouts): {reason}", float(frame), reason
+
+
+def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(display frame, numeric frame): per simulator and scene, long-rollout RMSE, max edge strain, divergence or 'stable'."""
+    display_rows, numeric_rows, index = [], [], []
+    for rec in records:
+        m, t = rec["metrics"], rec["timings"]
+
+        def get(key: str, section: dict[str, Any] = m) -> tuple[float, float]:
+            v = section.get(key, {})
+            mean, std = v.get("mean"), v.get("std")
+            return (float("nan") if mean is None else mean, float("nan") if std is None else std)
+
+        rmse, strain = get("rmse"), get("max_strain")
+        horizon = int(get("horizon_frames")[0]) if math.isfinite(get("horizon_frames")[0]) else None
+        cell, first, reason = _divergence_cell(rec)
+        display_rows.append(
+            {
+                "Scene": rec["scene"],
+                "Frames": "n/a" if horizon is None else str(horizon),
+                "RMSE": fmt_cell(*rmse) if math.isfinite(rmse[0]) else "n/a (diverged)",
+                "Max edge strain": fmt_cell(*strain, digits=3) if math.isfinite(strain[0]) else "n/a",
+                "GT max strain": f"{get('gt_max_strain')[0]:.3g}",
+                "Divergence": cell,
+                "infer ms/step": f"{get('infer_ms_per_step', t)[0]:.3g}",
+            }
+        )
+        numeric_rows.append(
+            {
+                "method": rec["label"],
+                "scene": rec["scene"],
+                "seeds": len(rec["seeds"]),
+                "horizon_frames": horizon,
+                "rmse/mean": rmse[0],
+                "rmse/std": rmse[1],
+                "max_strain/mean": strain[0],
+                "max_strain/std": strain[1],
+                "gt_max_strain": get("gt_max_strain")[0],
+                "diverged_fraction": get("diverged_fraction")[0],
+                "first_divergence": first,
+                "reason": reason,
+                "infer_ms_per_step": get("infer_ms_per_step", t)[0],
+                "fit_seconds": get("fit_seconds", t)[0],
+            }
+        )
+        index.append(rec["label"])
+    return pd.DataFrame(display_rows, index=pd.Index(index, name="Method")), pd.DataFrame(numeric_rows)
+
+
+def write_stability_tables(runs_dir: Path, out_dir: Path) -> list[Path]:
+    """One markdown/LaTeX/CSV stability table per preset, rows per (simulator, scene)."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for _, rec in iter_records(runs_dir, "stability"):
+        groups.setdefault(rec["preset"], []).append(rec)
+    if not groups:
+        raise ClodsError("no 'stability' run records found", where=str(runs_dir), hint="run e.g. `clods-bench run stability --sim constvel` first")
+    written = []
+    for preset, recs in sorted(groups.items()):
+        recs.sort(key=lambda r: (r["label"], r["scene"]))
+        display, numeric = stability_frame(recs)
+        stem = out_dir / f"stability_{preset}"
+        caption = (
+            f"Long-rollout stability (preset {preset}); RMSE over the frames with ground truth and max edge strain "
+            "|l/l0 - 1|: mean ± std over seeds; divergence = first frame with NaN/Inf, strain or kinetic energy over threshold."
+        )
+        write_text(stem.with_suffix(".md"), f"{caption}\n\n{display.to_markdown()}\n")
+        write_text(stem.with_suffix(".tex"), display.to_latex(caption=caption))
+        write_text(stem.with_suffix(".csv"), numeric.to_csv(index=False))
+        written += [stem.with_suffix(s) for s in (".md", ".tex", ".csv")]
+    return written
+
+
 def to_markdown(display: pd.DataFrame) -> str:
     """Markdown with flattened 'Viewed / Interpolation / d(t=30)' headers."""
     flat = display.copy()
@@ -76,8 +218,10 @@ def to_markdown(display: pd.DataFrame) -> str:
 
 def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]:
     """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task`; return the paths."""
-    if task != "cdg":
-        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task")
+    if task == "stability":
+        return write_stability_tables(runs_dir, out_dir)
+    if task not in ("cdg", "nvs"):
+        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs")
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for _, rec in iter_records(runs_dir, task):
         groups.setdefault((rec["scene"], rec["preset"]), []).append(rec)
@@ -86,13 +230,17 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
     written = []
     for (scene, preset), recs in sorted(groups.items()):
         recs.sort(key=lambda r: r["label"])
-        display, numeric = cdg_frame(recs)
         stem = out_dir / f"{task}_{scene}_{preset}"
-        seeds = sorted({len(r["seeds"]) for r in recs})
-        caption = (
-            f"CDG rollout RMSE ({scene}, preset {preset}); mean ± std over {'/'.join(map(str, seeds))} seeds; "
-            "Viewed = second half of the training trajectories, Unviewed = test trajectories."
-        )
+        if task == "nvs":
+            display, numeric, notes = nvs_frame(recs)
+            caption = nvs_caption(scene, preset, recs, notes)
+        else:
+            display, numeric = cdg_frame(recs)
+            seeds = sorted({len(r["seeds"]) for r in recs})
+            caption = (
+                f"CDG rollout RMSE ({scene}, preset {preset}); mean ± std over {'/'.join(map(str, seeds))} seeds; "
+                "Viewed = second half of the training trajectories, Unviewed = test trajectories."
+            )
         write_text(stem.with_suffix(".md"), f"{caption}\n\n{to_markdown(display)}\n")
         write_text(stem.with_suffix(".tex"), display.to_latex(caption=caption, multicolumn_format="c"))
         write_text(stem.with_suffix(".csv"), numeric.to_csv(index=False))

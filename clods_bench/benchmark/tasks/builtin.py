@@ -5,6 +5,8 @@ from __future__ import annotations
 from clods_bench.benchmark.descriptors import TaskSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
+from clods_bench.benchmark.tasks.nvs import run_nvs
+from clods_bench.benchmark.tasks.stability import run_stability
 
 
 @hookimpl
@@ -14,6 +16,18 @@ def clods_bench_tasks() -> list[TaskSpec]:
             name="cdg",
             description="Cloth dynamics grounding: simulator rollout RMSE, viewed/unviewed x interpolation/extrapolation (Table 2).",
             run=run_cdg,
+            needs=("sim",),
+        ),
+        TaskSpec(
+            name="nvs",
+            description="Dynamic-scene novel-view synthesis: renderer fitted on frame 0, driven by true meshes; PSNR/SSIM/LPIPS on held-out views (Table 3).",
+            run=run_nvs,
+            needs=("renderer",),
+        ),
+        TaskSpec(
+            name="stability",
+            description="Stability: long rollouts (2x the stored horizon) watched for NaN, runaway strain and energy; divergence step and reason.",
+            run=run_stability,
             needs=("sim",),
         ),
     ]

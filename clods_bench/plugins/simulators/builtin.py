@@ -5,6 +5,27 @@ from __future__ import annotations
 from clods_bench.benchmark.descriptors import PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.plugins.simulators.baselines import ConstantVelocity, Frozen
+from clods_bench.plugins.simulators.learned.config import MgnConfig
+from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig, HcmtConfig
+from clods_bench.plugins.simulators.physics import PhysicsConfig, PhysicsSimulator
+
+
+def _build_mgn(cfg: MgnConfig, ctx: object) -> object:
+    from clods_bench.plugins.simulators.learned.mgn import build_mgn  # torch is imported only when a model is built
+
+    return build_mgn(cfg, ctx)
+
+
+def _build_bsms(cfg: BsmsConfig, ctx: object) -> object:
+    from clods_bench.plugins.simulators.learned.bsms import build_bsms  # torch is imported only when a model is built
+
+    return build_bsms(cfg, ctx)
+
+
+def _build_hcmt(cfg: HcmtConfig, ctx: object) -> object:
+    from clods_bench.plugins.simulators.learned.hcmt import build_hcmt  # torch is imported only when a model is built
+
+    return build_hcmt(cfg, ctx)
 
 
 @hookimpl
@@ -19,5 +40,32 @@ def clods_bench_simulators() -> list[PluginSpec]:
             name="frozen",
             description="Frozen-cloth baseline: every free node stays where it is at frame 1.",
             build=lambda cfg, ctx: Frozen(),
+        ),
+        PluginSpec(
+            name="physics",
+            description="Traditional pipeline: the implicit cloth solver with the scene's known physics and expected wind.",
+            build=lambda cfg, ctx: PhysicsSimulator(ctx.scene, cfg),
+            config_cls=PhysicsConfig,
+        ),
+        PluginSpec(
+            name="mgn",
+            description="MeshGraphNets cloth model (encode-process-decode, 15 residual message-passing steps), mesh-supervised.",
+            build=_build_mgn,
+            config_cls=MgnConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="bsms",
+            description="BSMS-GNN-style model: message-passing U-Net over bi-stride pooled levels of the mesh, mesh-supervised.",
+            build=_build_bsms,
+            config_cls=BsmsConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="hcmt",
+            description="HCMT-style model: mesh-transformer U-Net over bi-stride levels, contact attention with obstacles.",
+            build=_build_hcmt,
+            config_cls=HcmtConfig,
+            learned=True,
         ),
     ]

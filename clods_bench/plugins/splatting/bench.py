@@ -1,8 +1,8 @@
 """Benchmark of the splatting backends on a fixed cloth scene: `bench_render(...)` returns a dict for the CLI.
 
-Scene: the FLAGSIMPLE-sized flag (1579 nodes, 3028 faces) with a travelling wave, 5 Gaussians per face
-at fixed barycentric points, flat face-anchored covariances (two in-plane axes from the triangle as in
-GaMeS / SMGS, zero thickness along the normal), 8 cameras at 128x128 around it. Timed: forward and
+Scene (`flag_scene.bench_scene`): the FLAGSIMPLE-sized flag (1579 nodes, 3028 faces) with a travelling
+wave, 5 Gaussians per face at fixed barycentric points with flat GaMeS face-frame covariances (zero
+thickness along the normal), 8 cameras at 128x128 around it. Timed: forward and
 forward+backward of `render_gaussians` (projection and compositing included) per backend; peak memory
 is the peak rise of the resident set size during one forward+backward in a fresh process (sampled
 every millisecond), so allocator caches of earlier runs do not hide it.
@@ -15,54 +15,32 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-import numpy as np
 import torch
 
-from clods_bench.datasets.cameras import Camera, camera_rig
-from clods_bench.datasets.meshes import make_flagsimple_mesh
+from clods_bench.datasets.cameras import Camera
+from clods_bench.plugins.splatting.flag_scene import bench_scene
 from clods_bench.plugins.splatting.rasterize import RenderOutput, render_gaussians
 
-BARYCENTRICS = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3], [0.45, 0.45, 0.1]])
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Table
 
-
-def face_gaussians(verts: np.ndarray, faces: np.ndarray, bary: np.ndarray = BARYCENTRICS, shrink: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
-    """(F*B,3) means and (F*B,3,3) flat covariances anchored on triangles (GaMeS frame, zero normal scale)."""
-    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]  # (F,3)
-    means = np.einsum("kj,fjd->fkd", bary, np.stack([a, b, c], axis=1)).reshape(-1, 3)
-    e1, e2 = b - a, c - a
-    r2 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
-    r3 = e2 - np.sum(e2 * r2, axis=1, keepdims=True) * r2
-    h = np.linalg.norm(r3, axis=1, keepdims=True)
-    r3 /= h
-    s2, s3 = np.linalg.norm(e1, axis=1) / shrink, h[:, 0] / shrink
-    cov = s2[:, None, None] ** 2 * np.einsum("fi,fj->fij", r2, r2) + s3[:, None, None] ** 2 * np.einsum("fi,fj->fij", r3, r3)
-    return means, np.repeat(cov, len(bary), axis=0)
-
-
-def bench_scene(seed: int = 0, size: int = 128, num_cameras: int = 8, dtype: torch.dtype = torch.float32) -> tuple[dict[str, torch.Tensor], list[Camera]]:
-    """The fixed benchmark scene: Gaussian tensors (means, covars, opacities, colors) and cameras."""
-    mesh = make_flagsimple_mesh()
-    v = np.array(mesh.rest_pos, dtype=np.float64)
-    v[:, 1] += 0.12 * v[:, 0] * np.sin(3.0 * v[:, 0] + 2.0 * v[:, 2])  # a wave, growing away from the pole
-    means, covars = face_gaussians(v, np.asarray(mesh.cells))
-    rng = np.random.default_rng(seed)
-    G = means.shape[0]
-    data = {
-        "means": torch.tensor(means, dtype=dtype),
-        "covars": torch.tensor(covars, dtype=dtype),
-        "opacities": torch.tensor(rng.uniform(0.5, 0.95, G), dtype=dtype),
-        "colors": torch.tensor(rng.uniform(0.0, 1.0, (G, 3)), dtype=dtype),
-    }
-    centre = 0.5 * (v.min(0) + v.max(0))
-    return data, camera_rig(num_cameras, centre, 4.5, size, size)
+SPEEDUP_TARGET = 10.0  # forward+backward of 'cpu' against 'reference'
+AGREEMENT_TOL = 1e-5  # max |cpu - reference| on images; relative on gradients
 
 
 class _PeakRSS:
-    """Context manager sampling the resident set size; `.peak` is the rise above the starting level in bytes."""
+    """Context manager for the peak rise of the resident set size above its starting level, `.peak` in bytes.
+
+    The kernel's high-water mark (getrusage ru_maxrss) is exact when the block sets a new process peak;
+    a 1 ms sampler covers blocks whose peak stays below an earlier one.
+    """
 
     def __enter__(self) -> "_PeakRSS":
         self.start = self.peak_abs = _rss()
+        self.max_start = _max_rss()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -76,6 +54,9 @@ class _PeakRSS:
         self._stop.set()
         self._thread.join()
         self.peak_abs = max(self.peak_abs, _rss())
+        max_end = _max_rss()
+        if max_end > self.max_start:  # a new high-water mark was set inside the block
+            self.peak_abs = max(self.peak_abs, max_end)
         self.peak = self.peak_abs - self.start
 
 
@@ -85,6 +66,16 @@ def _rss() -> int:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except OSError:  # pragma: no cover
+        return 0
+
+
+def _max_rss() -> int:
+    """The process's peak resident set size so far in bytes (getrusage; 0 where unavailable)."""
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
+    except (ImportError, OSError):  # pragma: no cover
         return 0
 
 
@@ -129,8 +120,9 @@ def peak_memory_mb(backend: str, seed: int = 0, size: int = 128, num_cameras: in
         return pool.apply(_peak_child, (backend, seed, size, num_cameras))
 
 
-def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: int = 8) -> dict:
-    """Time 'cpu' and 'reference' on the fixed scene; report ms, speed-up, peak memory and their agreement."""
+def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: int = 8, memory: bool = True) -> dict:
+    """Time 'cpu' and 'reference' on the fixed flag scene: ms (min and median of `repeats`), speed-ups, peak
+    memory (fresh process per backend, skipped with memory=False) and the largest cpu-vs-reference differences."""
     data, cameras = bench_scene(seed, size, num_cameras)
     result: dict = {"gaussians": int(data["means"].shape[0]), "cameras": num_cameras, "image": f"{size}x{size}",
                     "threads": {"torch": torch.get_num_threads(), "cpus": os.cpu_count()}}  # fmt: skip
@@ -140,10 +132,9 @@ def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: 
         fwd = _time(lambda: _run(data, cameras, backend, False), repeats)
         both = _time(lambda: _run(data, cameras, backend, True), repeats)
         outputs[backend] = _run(data, cameras, backend, backward=True)
-        mem_mb = peak_memory_mb(backend, seed, size, num_cameras)
         result[backend] = {"forward_ms": round(fwd[0], 1), "forward_ms_median": round(fwd[1], 1),
                            "forward_backward_ms": round(both[0], 1), "forward_backward_ms_median": round(both[1], 1),
-                           "peak_rss_mb": mem_mb}  # fmt: skip
+                           "peak_rss_mb": peak_memory_mb(backend, seed, size, num_cameras) if memory else None}  # fmt: skip
     ref, fast = result["reference"], result["cpu"]
     result["speedup_forward"] = round(ref["forward_ms"] / fast["forward_ms"], 1)
     result["speedup_forward_backward"] = round(ref["forward_backward_ms"] / fast["forward_backward_ms"], 1)
@@ -157,7 +148,48 @@ def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: 
     return result
 
 
-if __name__ == "__main__":  # pragma: no cover
-    import json
+def render_table(result: dict) -> Table:
+    """A rich table of a `bench_render` result: times per backend, speed-ups against the 10x target, agreement."""
+    from rich.table import Table
 
-    print(json.dumps(bench_render(), indent=2))
+    def ok(flag: bool) -> str:
+        return "[green]yes[/green]" if flag else "[red]NO[/red]"
+
+    title = (f"clods-bench bench render: {result['gaussians']} flat Gaussians on the 1579-node flag, "
+             f"{result['cameras']} cameras {result['image']}, {result['threads']['torch']} threads")  # fmt: skip
+    table = Table(title=title)
+    for col in ("what", "cpu (numba)", "reference (torch)", "reference / cpu", "target", "met"):
+        table.add_column(col, justify="right")
+    fast, ref = result["cpu"], result["reference"]
+    for key, label, speed in (("forward_ms", "forward ms (min)", "speedup_forward"),
+                              ("forward_backward_ms", "forward+backward ms (min)", "speedup_forward_backward")):  # fmt: skip
+        target = SPEEDUP_TARGET if key == "forward_backward_ms" else None
+        table.add_row(label, f"{fast[key]:.1f}", f"{ref[key]:.1f}", f"{result[speed]:.1f}x",
+                      "" if target is None else f">= {target:.0f}x", "" if target is None else ok(result[speed] >= target))  # fmt: skip
+    table.add_row("forward+backward ms (median)", f"{fast['forward_backward_ms_median']:.1f}",
+                  f"{ref['forward_backward_ms_median']:.1f}", "", "", "")  # fmt: skip
+    table.add_row("forward+backward ms / view", f"{fast['forward_backward_ms'] / result['cameras']:.1f}",
+                  f"{ref['forward_backward_ms'] / result['cameras']:.1f}", "", "", "")  # fmt: skip
+    if fast["peak_rss_mb"] is not None:
+        table.add_row("peak memory MiB (RSS rise)", f"{fast['peak_rss_mb']:.0f}", f"{ref['peak_rss_mb']:.0f}",
+                      f"{ref['peak_rss_mb'] / max(fast['peak_rss_mb'], 1e-9):.1f}x", "", "")  # fmt: skip
+    diff = result["max_abs_diff"]
+    table.add_row("max |cpu - ref| rgb, alpha", f"{diff['images']:.1e}", "", "", f"<= {AGREEMENT_TOL:.0e}", ok(diff["images"] <= AGREEMENT_TOL))
+    table.add_row("max |cpu - ref| depth", f"{diff['depth']:.1e}", "", "", "", "")
+    table.add_row("max gradient diff / max |grad|", f"{diff['grads_relative']:.1e}", "", "", f"<= {AGREEMENT_TOL:.0e}",
+                  ok(diff["grads_relative"] <= AGREEMENT_TOL))  # fmt: skip
+    return table
+
+
+def print_bench_render(console: Console, repeats: int = 3, size: int = 128, num_cameras: int = 8, memory: bool = True) -> dict:
+    """Run `bench_render` with a status line, print its table on `console` and return the result dict."""
+    with console.status(f"splatting: {num_cameras} views at {size}x{size}, cpu and reference backends ..."):
+        result = bench_render(repeats=repeats, size=size, num_cameras=num_cameras, memory=memory)
+    console.print(render_table(result))
+    return result
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from rich.console import Console as _Console
+
+    print_bench_render(_Console())

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
+from clods_bench.plugins.splatting.projection import covariances_from_quats_scales
 
 BACKENDS = ("cpu", "reference", "gsplat")
 DEPTH_MODES = ("expected", "accumulated")
@@ -31,6 +33,23 @@ def check_finite(x: Tensor, name: str) -> None:
     if bool(bad.any()):
         i = int(torch.nonzero(bad)[0, 0])
         raise ClodsError(f"non-finite value (NaN or inf) at index {i}: {x[i].detach().tolist()}", where=f"{name}[{i}]")
+
+
+def resolve_covariances(means: Tensor, covars: Tensor | None, quats: Tensor | None, scales: Tensor | None) -> Tensor:
+    """(G,3,3) covariances: `covars` as given, or R S S^T R^T from (G,4) quats and (G,3) scales (exactly one of the two)."""
+    if covars is not None:
+        if quats is not None or scales is not None:
+            raise ClodsError("give either covars or quats and scales, not both", where="covars")
+        return covars
+    if quats is None or scales is None:
+        raise ClodsError("need covars, or both quats and scales", where="covars")
+    check_shape(means, (None, 3), "means")
+    G = means.shape[0]
+    check_shape(quats, (G, 4), "quats")
+    check_shape(scales, (G, 3), "scales")
+    check_finite(quats, "quats")
+    check_finite(scales, "scales")
+    return covariances_from_quats_scales(quats, scales)
 
 
 def check_gaussians(means: Tensor, covars: Tensor, opacities: Tensor, colors: Tensor) -> int:
@@ -58,7 +77,13 @@ def check_cameras(cameras: Sequence[Camera]) -> tuple[int, int]:
         raise ClodsError("need at least one camera", where="cameras")
     for i, cam in enumerate(cameras):
         cam.validate(where=f"cameras[{i}]")
-    width, height = cameras[0].width, cameras[0].height
+        K = np.asarray(cam.K, dtype=np.float64)
+        if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            raise ClodsError(f"the splatting rasterizer needs a pinhole K [[fx,0,cx],[0,fy,cy],[0,0,1]], got {K.tolist()}",
+                             where=f"cameras[{i}].K", hint="skew and a scaled last row are not supported")  # fmt: skip
+        if int(cam.width) != cam.width or int(cam.height) != cam.height:
+            raise ClodsError(f"image size must be whole pixels, got {cam.width}x{cam.height}", where=f"cameras[{i}]")
+    width, height = int(cameras[0].width), int(cameras[0].height)
     for i, cam in enumerate(cameras):
         if (cam.width, cam.height) != (width, height):
             raise ClodsError(

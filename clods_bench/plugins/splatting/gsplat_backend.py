@@ -5,6 +5,9 @@ ClodsError saying what to install. Inputs move to the GPU and results come back 
 `means` (autograd follows). We request 'RGB+D' (accumulated depth) without gsplat backgrounds and
 composite the background / normalise depth in torch exactly like the CPU backends, which keeps the
 call independent of how gsplat versions pad backgrounds for the depth channel.
+Known differences from the CPU backends (float32 CUDA aside): gsplat clamps alpha at 0.999 instead of
+3DGS's 0.99 and stops at T <= 1e-4 instead of T < 1e-4, so only pixels with opacity above 0.99 or a
+transmittance of exactly 1e-4 differ.
 """
 
 from __future__ import annotations

@@ -23,6 +23,7 @@ from clods_bench.plugins.splatting.checks import (
     check_device,
     check_gaussians,
     check_options,
+    resolve_covariances,
 )
 from clods_bench.plugins.splatting.projection import EPS2D, project_gaussians, tile_bounds
 from clods_bench.plugins.splatting.sh import sh_degree_of, view_colors
@@ -52,11 +53,13 @@ def camera_tensors(cameras: Sequence[Camera], dtype: torch.dtype = torch.float64
 
 def render_gaussians(
     means: Tensor,  # (G,3) world-space centres
-    covars: Tensor,  # (G,3,3) world-space covariances (PSD; flat / rank-deficient allowed)
+    covars: Tensor | None,  # (G,3,3) world-space covariances (PSD; flat / rank-deficient allowed), or None
     opacities: Tensor,  # (G,) in [0,1]
     colors: Tensor,  # (G,3) RGB, or (G,K,3) SH coefficients
     cameras: Sequence[Camera],
     *,
+    quats: Tensor | None = None,  # (G,4) rotations (w,x,y,z), with scales instead of covars
+    scales: Tensor | None = None,  # (G,3) axis standard deviations, with quats instead of covars
     sh_degree: int | None = None,
     background: Sequence[float] | Tensor = (1.0, 1.0, 1.0),
     backend: Backend = "cpu",
@@ -68,6 +71,7 @@ def render_gaussians(
 
     Args:
         means, covars, opacities, colors: the Gaussians, shapes above; NaN/inf -> ClodsError.
+        quats, scales: instead of covars (pass covars=None): covariance R S S^T R^T, differentiable.
         cameras: C cameras sharing one image size (OpenCV convention, see datasets.cameras).
         sh_degree: SH degree for (G,K,3) colours (default sqrt(K)-1); must be None for RGB.
         background: (3,) or (C,3) colour behind the Gaussians; a tensor gets gradients.
@@ -81,6 +85,7 @@ def render_gaussians(
         RenderOutput with rgb, alpha, depth (C,H,W,.) and radii (C,G) in the dtype of `means`.
     """
     check_options(backend, near, tile, depth_mode)
+    covars = resolve_covariances(means, covars, quats, scales)
     G = check_gaussians(means, covars, opacities, colors)
     check_device(means, backend)
     degree = sh_degree_of(colors, sh_degree)
@@ -98,7 +103,7 @@ def render_gaussians(
 
     proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
     rgb_cg = view_colors(colors, means, centers, degree).to(dtype)  # (C,G,3)
-    opac_cg = opacities[None].expand(len(cameras), G)  # (C,G)
+    opac_cg = opacities.to(dtype)[None].expand(len(cameras), G)  # (C,G)
     bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)
     if backend == "cpu":
         from clods_bench.plugins.splatting.fast_cpu import rasterize_fast

@@ -81,6 +81,10 @@ def test_invalid_inputs_raise_clods_error() -> None:
     bad_K = Camera(np.diag([0.0, 100.0, 1.0]), bad_K.R, bad_K.t, bad_K.width, bad_K.height)
     with pytest.raises(ClodsError, match=r"cameras\[1\]\.K.*focal"):
         render_gaussians(*args, [head_on_camera(), bad_K])
+    skew = head_on_camera()
+    skew = Camera(skew.K + np.array([[0.0, 0.5, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]), skew.R, skew.t, skew.width, skew.height)
+    with pytest.raises(ClodsError, match=r"cameras\[0\]\.K.*pinhole"):
+        render_gaussians(*args, [skew])
     with pytest.raises(ClodsError, match=r"cameras\[1\].*image size"):
         render_gaussians(*args, [head_on_camera(40, 24), head_on_camera(32, 24)])
     with pytest.raises(ClodsError, match=r"covars.*shape"):
@@ -91,6 +95,13 @@ def test_invalid_inputs_raise_clods_error() -> None:
         render_gaussians(*args, [head_on_camera()], backend="cuda")  # type: ignore[arg-type]
     with pytest.raises(ClodsError, match=r"colors.*K=5"):
         render_gaussians(s["means"], s["covars"], s["opacities"], torch.zeros(5, 5, 3, dtype=F64), [head_on_camera()])
+    with pytest.raises(ClodsError, match=r"covars.*not both"):
+        render_gaussians(*args, [head_on_camera()], quats=torch.ones(5, 4, dtype=F64), scales=torch.ones(5, 3, dtype=F64))
+    with pytest.raises(ClodsError, match=r"covars.*both quats and scales"):
+        render_gaussians(s["means"], None, s["opacities"], s["colors"], [head_on_camera()], quats=torch.ones(5, 4, dtype=F64))
+    with pytest.raises(ClodsError, match=r"scales\[2\].*non-finite"):
+        bad = torch.ones(5, 3, dtype=F64).index_fill(0, torch.tensor([2]), float("nan"))
+        render_gaussians(s["means"], None, s["opacities"], s["colors"], [head_on_camera()], quats=torch.ones(5, 4, dtype=F64), scales=bad)
     with pytest.raises(ClodsError, match=r"cameras.*at least one"):
         render_gaussians(*args, [])
     with pytest.raises(ClodsError, match=r"background"):

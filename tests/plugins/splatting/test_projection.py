@@ -87,3 +87,26 @@ def test_importing_the_package_loads_neither_numba_kernels_nor_gsplat() -> None:
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_quats_and_scales_render_like_their_covariances() -> None:
+    from clods_bench.plugins.splatting import render_gaussians
+
+    g = torch.Generator().manual_seed(2)
+    scene = random_scene(30, seed=2, dtype=torch.float32)
+    quats = torch.randn(30, 4, generator=g).requires_grad_(True)
+    scales = (torch.rand(30, 3, generator=g) * 0.08 + 0.01).requires_grad_(True)
+    cams = camera_rig(2, np.zeros(3), 3.0, 24, 20)
+    a = render_gaussians(scene["means"], None, scene["opacities"], scene["colors"], cams, quats=quats, scales=scales)
+    # the same covariances computed by hand, R diag(s^2) R^T with R from the normalised quaternion
+    q = torch.nn.functional.normalize(quats.detach().double(), dim=-1)
+    R = torch.zeros(30, 3, 3, dtype=torch.float64)
+    for i, (w, x, y, z) in enumerate(q.tolist()):
+        R[i] = torch.tensor([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                             [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+                             [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])  # fmt: skip
+    covars = (R * scales.detach().double()[:, None, :] ** 2) @ R.transpose(1, 2)
+    b = render_gaussians(scene["means"], covars.float(), scene["opacities"], scene["colors"], cams)
+    torch.testing.assert_close(a.rgb, b.rgb, atol=1e-5, rtol=0)
+    a.rgb.sum().backward()
+    assert torch.isfinite(quats.grad).all() and float(scales.grad.abs().sum()) > 0

@@ -10,6 +10,7 @@ MGN's obstacle domains, are built only when the scene has obstacles (`GraphSpec`
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -66,9 +67,11 @@ class Topology:
     node_type_onehot: torch.Tensor  # (V, NODE_TYPE_SIZE) float32
     normal: torch.Tensor  # (V,) bool: simulated nodes
     obstacle: torch.Tensor  # (V,) bool
+    mesh_pos: torch.Tensor  # (V, 2) float32 rest-space positions (for processors that build coarse edges)
 
     @property
     def num_nodes(self) -> int:
+        """Number of nodes V."""
         return int(self.normal.shape[0])
 
 
@@ -95,16 +98,21 @@ def build_topology(cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarra
     mp = torch.as_tensor(np.asarray(mesh_pos, dtype=np.float32), device=device)
     nt = torch.as_tensor(np.asarray(node_type, dtype=np.int64), device=device)
     onehot = torch.nn.functional.one_hot(nt, NODE_TYPE_SIZE).to(torch.float32)
-    return Topology(s, r, _rel_with_norm(mp[s] - mp[r]), onehot, nt == NORMAL, nt == OBSTACLE)
+    return Topology(s, r, _rel_with_norm(mp[s] - mp[r]), onehot, nt == NORMAL, nt == OBSTACLE, mp)
 
 
 class TopologyCache:
-    """Topologies keyed by the content of (cells, mesh_pos, node_type), and batched copies of them."""
+    """Topologies keyed by the content of (cells, mesh_pos, node_type), and batched copies of them.
 
-    def __init__(self, device: str = "cpu") -> None:
+    Batched unions are kept for the `max_batched` most recently used key tuples: with several
+    meshes the number of distinct tuples grows combinatorially.
+    """
+
+    def __init__(self, device: str = "cpu", max_batched: int = 64) -> None:
         self.device = device
+        self.max_batched = max_batched
         self._single: dict[str, Topology] = {}
-        self._batched: dict[tuple[str, ...], Topology] = {}
+        self._batched: OrderedDict[tuple[str, ...], Topology] = OrderedDict()
 
     def key(self, cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarray) -> str:
         """Content key of one mesh."""
@@ -124,9 +132,20 @@ class TopologyCache:
         """The disjoint union of the given topologies (node indices offset), built once per key tuple."""
         if len(keys) == 1:
             return self._single[keys[0]]
-        if keys not in self._batched:
+        if keys in self._batched:
+            self._batched.move_to_end(keys)
+        else:
             self._batched[keys] = concat_topologies([self._single[k] for k in keys])
+            if len(self._batched) > self.max_batched:
+                self._batched.popitem(last=False)
         return self._batched[keys]
+
+    @staticmethod
+    def batch_key(keys: tuple[str, ...]) -> str:
+        """One key for a batch of topologies (the single key when there is one), for processor caches."""
+        if len(keys) == 1:
+            return keys[0]
+        return hashlib.sha1("+".join(keys).encode()).hexdigest()
 
 
 def concat_topologies(topos: list[Topology]) -> Topology:
@@ -140,6 +159,7 @@ def concat_topologies(topos: list[Topology]) -> Topology:
         cat([t.node_type_onehot for t in topos]),
         cat([t.normal for t in topos]),
         cat([t.obstacle for t in topos]),
+        cat([t.mesh_pos for t in topos]),
     )
 
 

@@ -1,4 +1,4 @@
-"""Online feature normaliser (DeepMind `normalization.py`): running mean/std from the first calls only."""
+"""Online feature normaliser (DeepMind `normalization.py`): running mean/std over the first 10^6 calls."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ class Normalizer(nn.Module):
     the variance is clamped at 0 so a constant feature cannot give NaN by rounding.
     """
 
-    def __init__(self, size: int, max_accumulations: int = 1000, std_epsilon: float = 1e-8) -> None:
+    def __init__(self, size: int, max_accumulations: int = 10**6, std_epsilon: float = 1e-8) -> None:
         super().__init__()
         self.size = size
         self.max_accumulations = max_accumulations

@@ -1,4 +1,4 @@
-"""Domain-agnostic encode-process-decode graph network (DeepMind `core_model.py`), in PyTorch.
+"""Graph-network building blocks shared by the learned simulators (DeepMind `core_model.py`), in PyTorch.
 
 MLPs have `hidden_layers` hidden ReLU layers of width `latent`, then a linear output layer
 and a LayerNorm (none on the decoder). Each of `message_passing_steps` residual blocks
@@ -13,7 +13,7 @@ import math
 import torch
 from torch import nn
 
-from clods_bench.plugins.simulators.mgn.graph import EdgeSet
+from clods_bench.plugins.simulators.learned.graph import EdgeSet
 
 
 def make_mlp(in_size: int, latent: int, hidden_layers: int, out_size: int, layer_norm: bool = True) -> nn.Sequential:
@@ -78,31 +78,3 @@ class GraphNetBlock(nn.Module):
         parts = [nodes] + [aggregate(new_edges[name], es.receivers, nodes.shape[0]) for name, es in edge_sets.items()]
         new_nodes = self.node_fn(torch.cat(parts, dim=-1)) + nodes
         return new_nodes, {name: es._replace(features=es.features + new_edges[name]) for name, es in edge_sets.items()}
-
-
-class EncodeProcessDecode(nn.Module):
-    """Encoder MLPs, `message_passing_steps` GraphNetBlocks, a decoder MLP (no LayerNorm) on nodes."""
-
-    def __init__(
-        self,
-        node_in: int,
-        edge_in: dict[str, int],
-        output_size: int,
-        latent: int = 128,
-        hidden_layers: int = 2,
-        message_passing_steps: int = 15,
-    ) -> None:
-        super().__init__()
-        names = list(edge_in)
-        self.node_encoder = make_mlp(node_in, latent, hidden_layers, latent)
-        self.edge_encoders = nn.ModuleDict({n: make_mlp(w, latent, hidden_layers, latent) for n, w in edge_in.items()})
-        self.blocks = nn.ModuleList(GraphNetBlock(latent, hidden_layers, names) for _ in range(message_passing_steps))
-        self.decoder = make_mlp(latent, latent, hidden_layers, output_size, layer_norm=False)
-
-    def forward(self, nodes: torch.Tensor, edge_sets: dict[str, EdgeSet]) -> torch.Tensor:
-        """Per-node output (V, output_size) from input node features and edge sets."""
-        x = self.node_encoder(nodes)
-        sets = {n: es._replace(features=self.edge_encoders[n](es.features)) for n, es in edge_sets.items()}
-        for block in self.blocks:
-            x, sets = block(x, sets)
-        return self.decoder(x)

@@ -1,0 +1,211 @@
+"""Dynamic-scene novel-view synthesis (NVS): fit a renderer on the training views, drive it by
+the true meshes, score the held-out views with PSNR, SSIM and LPIPS (the paper's Table 3).
+
+Protocol (appendix 'Dataset details'): "When assessing the performance of SMGS, we use
+multi-view images from the first 200 time steps of 5 trajectories as both training and
+testing data. SMGS generates Gaussian component representations of the cloth from the first
+frame of each trajectory and then generates multi-view images for 200 time steps by changing
+the mesh. The results from the 5 trajectories are averaged." Here: the first
+`num_trajectories` trajectories of the dataset (paper: 5 of its training trajectories), the
+first half of each (paper: 200 of 400 steps), fitted on the training cameras of frame 0 and
+scored on the held-out cameras (`SplitSpec.test_views`, the last `num_views_test` of the rig)
+at every scored frame, frame 0 included. "3DGS, trained separately per frame" is a renderer
+whose object has `per_frame = True`: it is fitted anew on every scored frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.progress import Progress
+
+from clods_bench.atomic import atomic_path
+from clods_bench.benchmark.config import dataclass_from_dict
+from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
+from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
+from clods_bench.benchmark.interfaces import Renderer
+from clods_bench.benchmark.tasks.cdg import split_spec
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import ClodsError
+
+GRID_FILE = "nvs_grid.png"
+METRICS = ("psnr", "ssim", "lpips")
+
+
+@dataclass(frozen=True)
+class NvsConfig:
+    """Options of the NVS task (`task_config.nvs.*`)."""
+
+    num_trajectories: int = 5
+    """Trajectories scored, the first ones of the dataset (paper: 5); fewer if the dataset has fewer."""
+    num_frames: int | None = None
+    """Frames per trajectory from frame 0 (default: the first half, num_steps // 2, as the paper's 200 of 400)."""
+    frame_stride: int = 1
+    """Score every k-th of those frames (1: all; larger keeps ci fast, above all for per-frame renderers)."""
+    lpips: bool = True
+    """Compute LPIPS when its weights are on this machine (never downloaded)."""
+    grid_frames: int = 3
+    """Frames of the first trajectory shown in the GT-vs-render image grid (0: no grid)."""
+
+    def validate(self, num_steps: int) -> None:
+        """Raise ClodsError naming the field when the options cannot work with `num_steps` frames."""
+        if self.num_trajectories < 1:
+            raise ClodsError(f"must be >= 1, got {self.num_trajectories}", where="task_config.nvs.num_trajectories")
+        if self.num_frames is not None and not 1 <= self.num_frames <= num_steps:
+            raise ClodsError(f"must be in [1, {num_steps}], got {self.num_frames}", where="task_config.nvs.num_frames")
+        if self.frame_stride < 1:
+            raise ClodsError(f"must be >= 1, got {self.frame_stride}", where="task_config.nvs.frame_stride")
+        if self.grid_frames < 0:
+            raise ClodsError(f"must be >= 0, got {self.grid_frames}", where="task_config.nvs.grid_frames")
+
+    def frames(self, num_steps: int) -> list[int]:
+        """The scored frame indices."""
+        last = self.num_frames if self.num_frames is not None else max(1, num_steps // 2)
+        return list(range(0, last, self.frame_stride))
+
+
+def is_per_frame(renderer: Any) -> bool:
+    """True for a renderer fitted independently on every frame (3DGS): its object sets `per_frame = True`."""
+    return bool(getattr(renderer, "per_frame", False))
+
+
+def build_renderer(ctx: TaskContext) -> Renderer:
+    """Build the configured renderer plugin for this seed (a fresh object per fit)."""
+    cfg = ctx.config
+    spec = ctx.registry.get("renderer", cfg.renderer)
+    rcfg = spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
+    scene = ctx.registry.get("scene", cfg.data.scene)
+    renderer = spec.build(rcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
+    if not isinstance(renderer, Renderer):
+        raise ClodsError("plugin did not return a Renderer (needs fit() and render())", where=f"renderer '{cfg.renderer}'")
+    return renderer
+
+
+def _as_images(out: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """A renderer's output as float32 (N,H,W,3) numpy in [0,1]; ClodsError on a wrong shape or NaN."""
+    arr = out.detach().cpu().numpy() if isinstance(out, torch.Tensor) else np.asarray(out)
+    if arr.shape != shape:
+        raise ClodsError(f"render returned shape {arr.shape}, expected {shape}", where=where)
+    if not np.isfinite(arr).all():
+        raise ClodsError("render returned NaN/Inf pixels", where=where)
+    return np.clip(arr.astype(np.float32), 0.0, 1.0)
+
+
+def _to_float(frames: np.ndarray) -> np.ndarray:
+    return np.asarray(frames, dtype=np.float32) / 255.0
+
+
+def run_nvs(ctx: TaskContext) -> TaskResult:
+    """One seed of NVS over the configured trajectories and frames; metrics are means over all scored images."""
+    cfg = ctx.config
+    if not cfg.data.render_frames:
+        raise ClodsError("NVS needs rendered frames", where="data.render_frames", hint="set data.render_frames=true")
+    opts: NvsConfig = dataclass_from_dict(NvsConfig, dict(cfg.task_config.get("nvs", {})), where="task_config.nvs", prefix="nvs.")
+    opts.validate(cfg.data.num_steps)
+    splits = split_spec(ctx)
+    if splits.num_views_test < 1:
+        raise ClodsError("NVS needs held-out cameras", where="data.num_views_test", hint="set it to 1 or more")
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    cams = store.cameras()
+    train_cams = [cams[v] for v in splits.train_views]
+    test_cams = [cams[v] for v in splits.test_views]
+    train_idx, test_idx = list(splits.train_views), list(splits.test_views)
+    traj_ids = list(range(min(opts.num_trajectories, splits.num_trajectories)))
+    frames = opts.frames(cfg.data.num_steps)
+    h, w = test_cams[0].height, test_cams[0].width
+    lpips: LpipsMetric | LpipsUnavailable = load_lpips() if opts.lpips else LpipsUnavailable("LPIPS switched off (task_config.nvs.lpips=false)")
+    lpips = lpips_for((h, w), lpips)
+    metric = lpips if isinstance(lpips, LpipsMetric) else None
+    torch.manual_seed(ctx.seed)
+
+    scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}  # per (trajectory, frame): (views,) arrays
+    per_traj: dict[str, dict[str, float]] = {}
+    fit_seconds, fits, render_seconds, fit_stats = 0.0, 0, 0.0, []
+    grid: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
+    grid_at = set(np.linspace(0, len(frames) - 1, min(opts.grid_frames, len(frames))).round().astype(int).tolist()) if opts.grid_frames else set()
+    per_frame = None
+    with Progress(transient=True, disable=not cfg.progress) as bar:
+        job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames))
+        for i in traj_ids:
+            traj = store.load_trajectory(i)
+            video = store.load_frames(i)
+            traj_scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
+            renderer = None
+            for n, t in enumerate(frames):
+                if renderer is None or per_frame:
+                    renderer = build_renderer(ctx)
+                    per_frame = is_per_frame(renderer)
+                    fit_t = t if per_frame else 0
+                    t0 = time.perf_counter()
+                    stats = renderer.fit(
+                        traj.world_pos[fit_t][None].astype(np.float32), traj.cells, traj.mesh_pos,
+                        _to_float(video[fit_t, train_idx])[None], train_cams,
+                    )  # fmt: skip
+                    fit_seconds += time.perf_counter() - t0
+                    fits += 1
+                    fit_stats.append(stats or {})
+                t0 = time.perf_counter()
+                with torch.no_grad():
+                    out = renderer.render(torch.from_numpy(traj.world_pos[t].astype(np.float32)), test_cams)
+                render_seconds += time.perf_counter() - t0
+                pred = _as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
+                gt = _to_float(video[t, test_idx])
+                for k, v in image_scores(pred, gt, metric).items():
+                    scores[k].append(v)
+                    traj_scores[k].append(v)
+                if i == traj_ids[0] and n in grid_at:
+                    grid[0].append(gt)
+                    grid[1].append(pred)
+                bar.advance(job)
+            per_traj[str(i)] = {k: float(np.mean(v)) for k, v in traj_scores.items() if v}
+
+    metrics = {k: float(np.mean(v)) for k, v in scores.items() if v}
+    images = len(traj_ids) * len(frames) * len(test_cams)
+    timings = {
+        "fit_seconds": fit_seconds,
+        "fit_seconds_per_fit": fit_seconds / max(fits, 1),
+        "render_ms_per_frame": 1000.0 * render_seconds / max(images, 1),
+        "render_seconds": render_seconds,
+    }
+    for key in sorted({k for s in fit_stats for k in s}):
+        timings[f"fit/{key}"] = float(np.mean([float(s[key]) for s in fit_stats if key in s]))
+    shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
+    curves = {k: np.stack(v).reshape(shape).mean(axis=(0, 2)).tolist() for k, v in scores.items() if v}  # per scored frame
+    grid_path = _write_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
+    extra = {
+        "trajectories": traj_ids,
+        "frames": frames,
+        "train_views": train_idx,
+        "test_views": test_idx,
+        "per_frame": bool(per_frame),
+        "fits": fits,
+        "images": images,
+        "per_trajectory": per_traj,
+        "lpips_unavailable": lpips.reason if isinstance(lpips, LpipsUnavailable) else None,
+        "grid": str(grid_path) if grid_path else None,
+    }
+    return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
+
+
+def _write_grid(path: Path, gts: list[np.ndarray], preds: list[np.ndarray], min_side: int = 128, gap: int = 2) -> Path:
+    """PNG grid: per held-out view a ground-truth row above a rendered row, one column per shown frame."""
+    import imageio.v3 as iio
+
+    views, h, w, _ = gts[0].shape
+    k = max(1, math.ceil(min_side / max(h, w)))
+    tile_h, tile_w = h * k + gap, w * k + gap
+    canvas = np.full((2 * views * tile_h + gap, len(gts) * tile_w + gap, 3), 0.5, dtype=np.float32)  # grey gaps
+    for c, (gt, pred) in enumerate(zip(gts, preds)):
+        for v in range(views):
+            for r, img in enumerate((gt[v], pred[v])):
+                y, x = gap + (2 * v + r) * tile_h, gap + c * tile_w
+                canvas[y : y + h * k, x : x + w * k] = np.kron(img, np.ones((k, k, 1), dtype=np.float32))
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, np.clip(np.rint(canvas * 255.0), 0, 255).astype(np.uint8), extension=".png")
+    return path

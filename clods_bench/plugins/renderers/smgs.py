@@ -1,0 +1,130 @@
+"""SMGS (paper section 3.2, eq. 4): GaMeS with dual-position opacity modulation.
+
+Opacity of Gaussian i at time t is alpha_i,t = sigmoid(MLP(PE(mu_W), PE(mu_M))): mu_W is the world
+position of its centre (moves with the mesh: relative), mu_M its mesh-space position, the same
+barycentric weights applied to `mesh_pos` (fixed: absolute). Both are normalised to [-1,1] by the
+bounding boxes seen in `fit`, then NeRF positional encoding [x, sin(2^k pi x), cos(2^k pi x)]_{k<L}.
+Ablation switch `inputs`: 'both' (SMGS), 'world', 'mesh' (a smooth per-Gaussian constant, i.e.
+GaMeS-like), 'none' (one shared learned opacity). Everything else is GaMeS (`games.py`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from clods_bench.errors import ClodsError
+from clods_bench.plugins.renderers.checks import FitInputs
+from clods_bench.plugins.renderers.fitting import ParamGroup, check_positive
+from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer, logit
+from clods_bench.plugins.renderers.mesh_gaussians import mesh_space_means
+
+Inputs = Literal["both", "world", "mesh", "none"]
+
+
+@dataclass(frozen=True)
+class SmgsConfig(GamesConfig):
+    """Options of SMGS (`renderer_config.smgs.*`): GaMeS's plus the opacity MLP's."""
+
+    inputs: Inputs = "both"
+    """Opacity MLP inputs: 'both' (paper eq. 4), 'world' (mu_W only), 'mesh' (mu_M only), 'none' (constant)."""
+    world_freqs: int = 4
+    """Positional-encoding frequencies L of the world position."""
+    mesh_freqs: int = 6
+    """Positional-encoding frequencies L of the mesh-space position."""
+    hidden: int = 64
+    """Width of the MLP's hidden layers."""
+    layers: int = 2
+    """Hidden layers of the MLP (ReLU)."""
+    lr_mlp: float = 0.005
+    """Adam learning rate of the MLP weights."""
+
+    def validate(self, where: str) -> None:
+        """GaMeS's checks plus the MLP's."""
+        super().validate(where)
+        if self.inputs not in ("both", "world", "mesh", "none"):
+            raise ClodsError(f"unknown inputs '{self.inputs}'; known: both, world, mesh, none", where=f"{where}.inputs")
+        for name in ("world_freqs", "mesh_freqs", "layers"):
+            if getattr(self, name) < 0:
+                raise ClodsError(f"must be >= 0, got {getattr(self, name)}", where=f"{where}.{name}")
+        if self.hidden < 1:
+            raise ClodsError(f"must be >= 1, got {self.hidden}", where=f"{where}.hidden")
+        check_positive(self.lr_mlp, f"{where}.lr_mlp", allow_zero=True)
+
+
+def positional_encoding(x: Tensor, freqs: int) -> Tensor:
+    """(G, D (1 + 2L)) NeRF encoding of (G,D) coordinates: x, sin(2^k pi x), cos(2^k pi x) for k < L."""
+    if freqs == 0:
+        return x
+    scaled = x[:, None, :] * (math.pi * 2.0 ** torch.arange(freqs, dtype=x.dtype))[None, :, None]  # (G,L,D)
+    return torch.cat([x, torch.sin(scaled).flatten(1), torch.cos(scaled).flatten(1)], dim=1)
+
+
+def box_normaliser(points: Tensor) -> tuple[Tensor, Tensor]:
+    """Centre (D,) and half extent (scalar, > 0) mapping the points' bounding box into [-1,1]^D."""
+    lo, hi = points.min(0).values, points.max(0).values
+    half = ((hi - lo).max() / 2.0).clamp(min=1e-6)
+    return (lo + hi) / 2.0, half
+
+
+class SmgsRenderer(GamesRenderer):
+    """GaMeS whose opacities come from an MLP of world- and mesh-space Gaussian positions."""
+
+    name = "smgs"
+    config: SmgsConfig
+
+    def __init__(self, config: SmgsConfig | None = None, seed: int = 0, progress: bool = False) -> None:
+        """Check the config; the MLP is created by `fit`."""
+        super().__init__(config or SmgsConfig(), seed, progress)
+
+    def _setup(self, data: FitInputs, gen: torch.Generator) -> None:
+        """Normalisation boxes of world (all fitted frames) and mesh coordinates, and the fixed mesh-space means."""
+        self.world_box = box_normaliser(torch.from_numpy(data.verts.reshape(-1, 3)))
+        mesh_box = box_normaliser(self.mesh_pos)
+        self.mesh_means = (mesh_space_means(self.mesh_pos, self.cells, self.bary) - mesh_box[0]) / mesh_box[1]
+
+    def _init_params(self, data: FitInputs, gen: torch.Generator) -> None:
+        """GaMeS's parameters without the per-Gaussian opacity, plus the MLP (last layer starts at init_opacity)."""
+        super()._init_params(data, gen)
+        del self.params["opacity_logit"]
+        cfg = self.config
+        use_w, use_m = cfg.inputs in ("both", "world"), cfg.inputs in ("both", "mesh")
+        width_in = (3 * (1 + 2 * cfg.world_freqs) if use_w else 0) + (self.mesh_means.shape[1] * (1 + 2 * cfg.mesh_freqs) if use_m else 0)
+        sizes = [max(width_in, 1)] + [cfg.hidden] * cfg.layers + [1]
+        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+            bound = 1.0 / math.sqrt(n_in)  # torch.nn.Linear's default init
+            w = (torch.rand(n_out, n_in, generator=gen) * 2 - 1) * bound
+            b = (torch.rand(n_out, generator=gen) * 2 - 1) * bound
+            if i == len(sizes) - 2:  # last layer: near-constant initial opacity
+                w, b = w * 0.01, torch.full((n_out,), logit(cfg.init_opacity))
+            self.params[f"mlp_w{i}"], self.params[f"mlp_b{i}"] = w.requires_grad_(), b.requires_grad_()
+        self.num_layers = len(sizes) - 1
+
+    def _param_groups(self) -> list[ParamGroup]:
+        """Scale and colour groups of GaMeS plus one group for the MLP."""
+        groups = super()._param_groups()
+        mlp = [p for k, p in self.params.items() if k.startswith("mlp_")]
+        return groups + [ParamGroup("mlp", mlp, self.config.lr_mlp)]
+
+    def features(self, means: Tensor) -> Tensor:
+        """(G,E) MLP input: encoded normalised world and/or mesh positions per `inputs` (zeros (G,1) for 'none')."""
+        cfg, parts = self.config, []
+        if cfg.inputs in ("both", "world"):
+            centre, half = self.world_box
+            parts.append(positional_encoding((means - centre.to(means.dtype)) / half.to(means.dtype), cfg.world_freqs))
+        if cfg.inputs in ("both", "mesh"):
+            parts.append(positional_encoding(self.mesh_means.to(means.dtype), cfg.mesh_freqs))
+        return torch.cat(parts, dim=1) if parts else torch.zeros(means.shape[0], 1, dtype=means.dtype)
+
+    def opacities(self, means: Tensor, verts: Tensor) -> Tensor:
+        """(G,) opacities sigmoid(MLP(features)); they change with the world positions unless inputs is 'mesh'/'none'."""
+        h = self.features(means)
+        for i in range(self.num_layers):
+            h = torch.nn.functional.linear(h, self.params[f"mlp_w{i}"].to(h.dtype), self.params[f"mlp_b{i}"].to(h.dtype))
+            if i < self.num_layers - 1:
+                h = torch.relu(h)
+        return torch.sigmoid(h[:, 0])

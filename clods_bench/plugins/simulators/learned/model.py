@@ -1,0 +1,79 @@
+"""Encode-process-decode with a pluggable processor, online normalisers and second-order integration.
+
+Shared by every learned simulator (DeepMind `cloth_model.py` + `core_model.py`): raw node and
+edge features are normalised online, encoded by MLPs to `latent_size`, updated by the
+simulator's processor, and decoded (no LayerNorm) to a normalised acceleration a; positions
+advance as x_{t+1} = 2 x_t - x_{t-1} + a on NORMAL nodes, kinematic nodes are prescribed.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import torch
+from torch import nn
+
+from clods_bench.plugins.simulators.learned.blocks import make_mlp
+from clods_bench.plugins.simulators.learned.graph import (
+    NODE_FEATURE_SIZE,
+    OUTPUT_SIZE,
+    EdgeSet,
+    GraphSpec,
+    Topology,
+    build_features,
+)
+from clods_bench.plugins.simulators.learned.normalizer import Normalizer
+from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
+
+ProcessorFactory = Callable[[int, int, Sequence[str]], nn.Module]
+"""Builds a processor from (latent_size, hidden_layers, edge set names)."""
+
+
+class LearnedModel(nn.Module):
+    """Normalisers, node/edge encoders, a processor (V,L)->(V,L) and the acceleration decoder."""
+
+    def __init__(
+        self,
+        spec: GraphSpec,
+        processor: nn.Module,
+        latent: int = 128,
+        hidden_layers: int = 2,
+        max_accumulations: int = 10**6,
+    ) -> None:
+        super().__init__()
+        self.spec = spec
+        widths = spec.edge_widths
+        self.node_normalizer = Normalizer(NODE_FEATURE_SIZE, max_accumulations)
+        self.edge_normalizers = nn.ModuleDict({n: Normalizer(w, max_accumulations) for n, w in widths.items()})
+        self.output_normalizer = Normalizer(OUTPUT_SIZE, max_accumulations)
+        self.node_encoder = make_mlp(NODE_FEATURE_SIZE, latent, hidden_layers, latent)
+        self.edge_encoders = nn.ModuleDict({n: make_mlp(w, latent, hidden_layers, latent) for n, w in widths.items()})
+        self.processor = processor
+        self.decoder = make_mlp(latent, latent, hidden_layers, OUTPUT_SIZE, layer_norm=False)
+
+    def forward(
+        self, topo: Topology, topology_key: str, pos: torch.Tensor, prev: torch.Tensor, accumulate: bool = False
+    ) -> torch.Tensor:
+        """Normalised acceleration (V,3) at positions x_t = `pos`, x_{t-1} = `prev`; `accumulate` updates the input normalisers."""
+        raw_nodes, raw_sets = build_features(topo, pos, prev, self.spec)
+        x = self.node_encoder(self.node_normalizer(raw_nodes, accumulate))
+        sets = {
+            n: EdgeSet(self.edge_encoders[n](self.edge_normalizers[n](es.features, accumulate)), es.senders, es.receivers)
+            for n, es in raw_sets.items()
+        }
+        x = self.processor(x, ProcessorInputs(sets, pos, topo.mesh_pos, topology_key))
+        return self.decoder(x)
+
+    def acceleration(self, normalized: torch.Tensor) -> torch.Tensor:
+        """Acceleration in metres per frame^2 from the decoder's normalised output."""
+        return self.output_normalizer.inverse(normalized)
+
+    def step(self, topo: Topology, topology_key: str, pos: torch.Tensor, prev: torch.Tensor, kinematic_next: torch.Tensor) -> torch.Tensor:
+        """x_{t+1}: 2 x_t - x_{t-1} + a on NORMAL nodes, `kinematic_next` elsewhere (V,3)."""
+        return integrate(pos, prev, self.acceleration(self(topo, topology_key, pos, prev)), topo.normal, kinematic_next)
+
+
+def integrate(pos: torch.Tensor, prev: torch.Tensor, accel: torch.Tensor, normal: torch.Tensor, kinematic_next: torch.Tensor) -> torch.Tensor:
+    """Second-order update x_{t+1} = 2 x_t - x_{t-1} + a where `normal`, prescribed positions elsewhere."""
+    free = 2.0 * pos - prev + accel
+    return torch.where(normal.unsqueeze(1), free, kinematic_next)

@@ -1,0 +1,39 @@
+"""The processor interface shared by the learned simulators (MGN, BSMS-style, HCMT-style).
+
+All learned simulators share one encode-process-decode model and one trainer; they differ only
+in the processor that maps encoded node latents to updated node latents. A processor must be a
+`torch.nn.Module` whose `forward` has this signature; `ProcessorInputs` holds what it may read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import torch
+
+from clods_bench.plugins.simulators.learned.graph import EdgeSet
+
+
+@dataclass(frozen=True)
+class ProcessorInputs:
+    """What a processor sees besides the latents.
+
+    `edge_sets`: encoded edge latents by name ('mesh' always; 'world' only with obstacles), each
+    with senders/receivers (E,) int64 in the node indexing of `nodes` (several meshes may be
+    batched as a disjoint union). `pos` (V,3) world positions at the current step and
+    `mesh_pos` (V,2) rest-space positions, for processors that build coarse-level edge features.
+    `topology_key` identifies the (possibly batched) static mesh topology, so a processor can
+    cache per-topology structures such as a bi-stride hierarchy.
+    """
+
+    edge_sets: dict[str, EdgeSet]
+    pos: torch.Tensor
+    mesh_pos: torch.Tensor
+    topology_key: str
+
+
+class Processor(Protocol):
+    """Maps node latents (V,L) to node latents (V,L); must be differentiable (it is trained)."""
+
+    def __call__(self, nodes: torch.Tensor, inputs: ProcessorInputs) -> torch.Tensor: ...

@@ -1,0 +1,89 @@
+"""bench sim: per-step train/inference times from a fake clock, skipping unknown names; physics on a real mesh."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from clods_bench.benchmark.descriptors import PluginSpec
+from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.sim_bench import bench_sim
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+CLOCK = FakeClock()
+
+
+@dataclass(frozen=True)
+class StepsConfig:
+    """A learned simulator's options."""
+
+    steps: int = 1000
+
+
+class FakeLearned:
+    """fit costs 5 s of set-up plus 0.25 s per step; rollout 10 ms per step (on the fake clock)."""
+
+    def __init__(self, cfg: StepsConfig) -> None:
+        self.cfg = cfg
+
+    def fit(self, train, ctx):
+        CLOCK.now += 5.0 + 0.25 * self.cfg.steps
+        return {}
+
+    def rollout(self, inp):
+        CLOCK.now += 0.010 * (inp.num_frames - 2)
+        return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
+
+
+class FakeSolver(FakeLearned):
+    """40 ms per rollout step, nothing to train."""
+
+    def fit(self, train, ctx):
+        return {}
+
+    def rollout(self, inp):
+        CLOCK.now += 0.040 * (inp.num_frames - 2)
+        return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
+
+
+class Fakes:
+    @hookimpl
+    def clods_bench_simulators(self) -> list[PluginSpec]:
+        return [
+            PluginSpec("learned", "fake", lambda cfg, ctx: FakeLearned(cfg), StepsConfig, learned=True),
+            PluginSpec("stepless", "fake", lambda cfg, ctx: FakeLearned(StepsConfig(3)), learned=True),
+            PluginSpec("solver", "fake", lambda cfg, ctx: FakeSolver(StepsConfig())),
+        ]
+
+
+def test_bench_sim_times_per_step_and_skips_unknown() -> None:
+    reg = Registry.from_plugin_manager(make_plugin_manager(extra_plugins=[Fakes()], load_entry_points=False))
+    console = Console(record=True, width=200)
+    out = bench_sim(
+        console, sims=("learned", "stepless", "nope", "solver"), frames=6, resolution=(5, 3), registry=reg, reference="solver", clock=CLOCK
+    )
+    assert set(out) == {"learned", "stepless", "solver"}
+    assert out["learned"].train_s_per_step == pytest.approx(0.25)  # set-up cost cancels in the difference
+    assert out["learned"].infer_ms_per_step == pytest.approx(10.0)
+    assert out["solver"].infer_ms_per_step == pytest.approx(40.0) and np.isnan(out["solver"].train_s_per_step)
+    assert np.isnan(out["stepless"].train_s_per_step) and "not timed" in out["stepless"].note
+    text = console.export_text()
+    assert "nope" in text and "not registered" in text and "0.25" in text  # ratio learned / solver = 10 / 40
+    assert "learned" in text and " 0.25 " in text.split("learned")[1].split("\n")[0]
+
+
+def test_bench_sim_physics_runs_on_a_small_flag() -> None:
+    out = bench_sim(Console(quiet=True), sims=("physics", "constvel"), frames=5, resolution=(6, 4))
+    assert out["physics"].infer_ms_per_step > 0 and out["constvel"].note == "not trained"

@@ -1,0 +1,149 @@
+"""Stability task: exploding test doubles are caught at the right frame; monitors against brute force."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from clods_bench.benchmark.descriptors import PluginSpec
+from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.interfaces import RolloutInput
+from clods_bench.benchmark.monitors import MeshMonitor, first_failure, lumped_mass
+from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.tables import write_tables
+from clods_bench.datasets.meshes import make_flag_mesh
+from clods_bench.datasets.scenes import get_scene, simulate_scene
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import ClodsError
+from clods_bench.plugins.simulators.baselines import ConstantVelocity
+from tests.conftest import tiny_config
+
+K = 7  # the doubles break at this frame
+
+
+class NaNAt(ConstantVelocity):
+    """Constant velocity until frame K, NaN from there on."""
+
+    def rollout(self, inp: RolloutInput) -> np.ndarray:
+        out = super().rollout(inp)
+        out[K:] = np.nan
+        return out
+
+
+class RaiseAt(ConstantVelocity):
+    """Raises whenever asked for frame K or later (a model that throws mid-rollout)."""
+
+    def rollout(self, inp: RolloutInput) -> np.ndarray:
+        if inp.num_frames > K:
+            raise FloatingPointError("overflow in the processor")
+        return super().rollout(inp)
+
+
+class StretchAt(ConstantVelocity):
+    """Finite, but free nodes fly 3x away from the handle centre from frame K on (runaway strain)."""
+
+    def rollout(self, inp: RolloutInput) -> np.ndarray:
+        out = super().rollout(inp)
+        free = ~inp.kinematic_mask
+        centre = out[1, ~free].mean(axis=0)
+        out[K:, free] = centre + 3.0 * (out[K:, free] - centre)
+        return out
+
+
+class Doubles:
+    @hookimpl
+    def clods_bench_simulators(self) -> list[PluginSpec]:
+        return [PluginSpec(name=n, description=n, build=lambda cfg, ctx, c=c: c()) for n, c in
+                (("nan-at", NaNAt), ("raise-at", RaiseAt), ("stretch-at", StretchAt))]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def registry() -> Registry:
+    return Registry.from_plugin_manager(make_plugin_manager(extra_plugins=[Doubles()]))
+
+
+def _run(root: Path, runs: Path, registry: Registry, sim: str, *extra: str) -> dict:
+    cfg = tiny_config(root, f"runs_dir={runs}", *extra, sim=sim, task="stability")
+    return json.loads((run_task(cfg, registry) / RECORD_FILE).read_text())
+
+
+@pytest.mark.parametrize(("sim", "reason"), [("nan-at", "non-finite"), ("raise-at", "exception: FloatingPointError"), ("stretch-at", "edge strain")])
+def test_double_diverges_at_k_with_reason(tiny_root: Path, tmp_path: Path, registry: Registry, sim: str, reason: str) -> None:
+    rec = _run(tiny_root, tmp_path / "runs", registry, sim)
+    extra = rec["per_seed"]["0"]["extra"]
+    assert list(extra["diverged"].values()) == [K]
+    assert next(iter(extra["reasons"].values())).startswith(reason)
+    assert rec["metrics"]["first_divergence"]["mean"] == K and rec["metrics"]["diverged_fraction"]["mean"] == 1.0
+    if sim == "stretch-at":  # 3x about the centre: some edge at least doubles (strain >= 2 > 0.5)
+        assert rec["metrics"]["max_strain"]["mean"] >= 2.0 and math.isfinite(rec["metrics"]["rmse"]["mean"])
+    else:
+        assert rec["metrics"]["rmse"]["mean"] is None  # NaN in the record: no RMSE for a blown-up rollout
+
+
+def test_baselines_stable_and_labelled_in_table(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:
+    runs = tmp_path / "runs"
+    recs = {sim: _run(tiny_root, runs, registry, sim) for sim in ("constvel", "frozen")}
+    _run(tiny_root, runs, registry, "nan-at", "label=exploder")
+    paths = write_tables(runs, tmp_path / "tables", task="stability")
+    csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
+    assert list(csv["method"]) == ["constvel", "exploder", "frozen"]
+    md = next(p for p in paths if p.suffix == ".md").read_text()
+    assert "stable" in md and f"frame {K} (1/1 rollouts): non-finite" in md
+    # independent numbers: the long ground truth re-simulated here, the constant-velocity RMSE longhand
+    store = DatasetStore.open(tiny_config(tiny_root).data.dataset_dir())
+    traj = store.load_trajectory(2)
+    frames = 2 * (traj.num_steps - 1) + 1
+    gt = simulate_scene(get_scene("flag"), get_scene("flag").build_mesh((6, 4)), frames, traj.meta["seed"]).world_pos
+    np.testing.assert_allclose(gt[: traj.num_steps], traj.world_pos, atol=1e-6)
+    pred = gt.astype(np.float64).copy()
+    free = traj.node_type == 0
+    for t in range(2, frames):
+        pred[t, free] = 2 * pred[t - 1, free] - pred[t - 2, free]
+    rmse = np.mean([np.sqrt(np.mean((pred[t] - gt[t]) ** 2)) for t in range(2, frames)])
+    row = csv[csv["method"] == "constvel"].iloc[0]
+    assert row["rmse/mean"] == pytest.approx(rmse, rel=1e-4) == pytest.approx(recs["constvel"]["metrics"]["rmse"]["mean"])
+    assert row["horizon_frames"] == frames and row["diverged_fraction"] == 0
+
+
+def test_bad_task_config_is_a_clear_error(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:
+    with pytest.raises(ClodsError, match="strain_threshold"):
+        _run(tiny_root, tmp_path, registry, "constvel", "task_config.stability.strain_threshold=-1")
+    with pytest.raises(ClodsError, match="unknown config key"):
+        _run(tiny_root, tmp_path, registry, "constvel", "task_config.stability.horizon=3")
+
+
+def test_monitors_against_brute_force() -> None:
+    mesh = make_flag_mesh(4, 3, 2.0, 1.0)
+    rng = np.random.default_rng(0)
+    frames = mesh.rest_pos[None] + 0.05 * rng.standard_normal((5, mesh.num_nodes, 3))
+    dt, density = 0.02, 0.3
+    mon = MeshMonitor.from_rest(mesh.cells, mesh.rest_pos, density, dt)
+    edges = {tuple(sorted((int(a), int(b)))) for c in mesh.cells for a, b in ((c[0], c[1]), (c[1], c[2]), (c[2], c[0]))}
+    for t in range(5):
+        worst = max(abs(np.linalg.norm(frames[t, a] - frames[t, b]) / np.linalg.norm(mesh.rest_pos[a] - mesh.rest_pos[b]) - 1) for a, b in edges)
+        assert mon.max_strain(frames)[t] == pytest.approx(worst, rel=1e-12)
+    # lumped masses: the 2 m x 1 m flag weighs density * 2 m^2 in total
+    assert lumped_mass(mesh.rest_pos, mesh.cells, density).sum() == pytest.approx(density * 2.0, rel=1e-12)
+    m = mon.mass
+    for t in range(1, 5):
+        ke = sum(0.5 * m[i] * np.sum(((frames[t, i] - frames[t - 1, i]) / dt) ** 2) for i in range(mesh.num_nodes))
+        assert mon.kinetic_energy(frames)[t] == pytest.approx(ke, rel=1e-12)
+    # thresholds: the first frame over each threshold, frames 0 and 1 never checked
+    strain = mon.max_strain(frames)
+    fail, _, _ = first_failure(frames, mon, strain_threshold=float(np.min(strain[2:])) - 1e-9, energy_threshold=1e30)
+    assert fail.frame == 2 and "strain" in fail.reason
+    energy = mon.kinetic_energy(frames)
+    threshold = float(np.median(energy[2:]))
+    fail, _, _ = first_failure(frames, mon, strain_threshold=1e9, energy_threshold=threshold)
+    assert fail.frame == next(t for t in range(2, 5) if energy[t] > threshold) and "energy" in fail.reason
+    bad = frames.copy()
+    bad[4, 0, 1] = np.inf
+    assert first_failure(bad, mon, 1e9, 1e30)[0].frame == 4
+    assert first_failure(frames, mon, 1e9, 1e30)[0] is None

@@ -1,0 +1,95 @@
+"""SMGS: positional encoding, opacity inputs per ablation switch, gradients through the opacity MLP."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from clods_bench.errors import ClodsError
+from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer, positional_encoding
+
+from .conftest import grid_mesh, rig
+from .test_games import check_vertex_gradient, fitted, randomise
+
+
+def _opacities(r: SmgsRenderer, verts: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return r.gaussians(torch.tensor(verts))[2].numpy()
+
+
+def _randomise_mlp(r: SmgsRenderer, seed: int = 0) -> None:
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for name, p in r.params.items():
+            if name.startswith("mlp_"):
+                p.copy_(torch.randn(p.shape, generator=g) * 0.7)
+
+
+def test_positional_encoding_values():
+    x = torch.tensor([[0.25, -0.5]], dtype=torch.float64)
+    out = positional_encoding(x, 2).numpy()[0]
+    expected = [0.25, -0.5]
+    expected += [math.sin(math.pi * 0.25), math.sin(-math.pi * 0.5), math.sin(2 * math.pi * 0.25), math.sin(-2 * math.pi * 0.5)]
+    expected += [math.cos(math.pi * 0.25), math.cos(-math.pi * 0.5), math.cos(2 * math.pi * 0.25), math.cos(-2 * math.pi * 0.5)]
+    np.testing.assert_allclose(out, expected, atol=1e-15)
+    assert positional_encoding(x, 0) is x
+
+
+@pytest.mark.parametrize("inputs", ["both", "world", "mesh", "none"])
+def test_opacity_depends_on_exactly_its_inputs(mesh, inputs):
+    verts, cells, mesh_pos = mesh
+    cams = rig(1, 12)
+    r = fitted(mesh, SmgsConfig(iterations=0, inputs=inputs), cams, cls=SmgsRenderer)
+    _randomise_mlp(r)
+    base = _opacities(r, verts)
+    moved = _opacities(r, verts + np.array([0.0, 0.2, 0.1]) * verts[:, :1])  # a shear: world positions change
+    r2 = fitted((verts, cells, mesh_pos * 1.5 + 0.2), SmgsConfig(iterations=0, inputs=inputs), cams, cls=SmgsRenderer)
+    _randomise_mlp(r2)
+    other_mesh = _opacities(r2, verts)  # same world positions, mesh-space normalisation box differs -> same inputs
+    flipped = fitted((verts, cells, mesh_pos[::-1].copy()), SmgsConfig(iterations=0, inputs=inputs), cams, cls=SmgsRenderer)
+    _randomise_mlp(flipped)
+    other_uv = _opacities(flipped, verts)  # same world positions, different mesh coordinates per node
+    world_moves = not np.allclose(base, moved, atol=1e-9)
+    mesh_matters = not np.allclose(base, other_uv, atol=1e-9)
+    assert world_moves == (inputs in ("both", "world"))
+    assert mesh_matters == (inputs in ("both", "mesh"))
+    np.testing.assert_allclose(base, other_mesh, atol=1e-6)  # inputs are normalised to the bounding box
+    if inputs == "none":
+        assert np.ptp(base) == 0.0
+    else:
+        assert np.ptp(base) > 1e-3
+
+
+def test_initial_opacity_is_near_the_configured_value(mesh):
+    r = fitted(mesh, SmgsConfig(iterations=0, init_opacity=0.3), rig(1, 12), cls=SmgsRenderer)
+    np.testing.assert_allclose(_opacities(r, mesh[0]), 0.3, atol=0.03)
+
+
+def test_vertex_gradient_through_world_opacity_matches_finite_differences():
+    mesh = grid_mesh(2, 1)
+    cams = rig(1, 12)
+    r = fitted(mesh, SmgsConfig(gaussians_per_face=2, iterations=0, backend="reference", normal_scale=1e-3, hidden=8), cams, cls=SmgsRenderer)
+    randomise(r)
+    _randomise_mlp(r)
+    check_vertex_gradient(r, mesh[0], cams)
+
+
+def test_fit_trains_the_mlp(mesh):
+    cams = rig(2, 16)
+    r = SmgsRenderer(SmgsConfig(iterations=20))
+    before = None
+    stats = r.fit(mesh[0][None], mesh[1], mesh[2], np.full((1, 2, 16, 16, 3), 0.2, np.float32), cams)
+    assert stats["loss_final"] < stats["loss_first"]
+    before = SmgsRenderer(SmgsConfig(iterations=0))
+    before.fit(mesh[0][None], mesh[1], mesh[2], np.full((1, 2, 16, 16, 3), 0.2, np.float32), cams)
+    assert not torch.allclose(r.params["mlp_w0"], before.params["mlp_w0"])
+
+
+def test_bad_config_raises():
+    with pytest.raises(ClodsError, match="inputs"):
+        SmgsRenderer(SmgsConfig(inputs="time"))  # type: ignore[arg-type]
+    with pytest.raises(ClodsError, match="hidden"):
+        SmgsRenderer(SmgsConfig(hidden=0))
