@@ -64,13 +64,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("tables"))
-    p.add_argument("--task", default="cdg")
+    p.add_argument("--task", default="all", help="cdg, nvs, stability, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
-    p = sub.add_parser("bench", help="speed benchmarks")
-    p.add_argument("what", choices=("data",), help="data: cloth solver and ground-truth rasterizer")
-    p.add_argument("--steps", type=int, default=400, help="solver steps to time")
-    p.add_argument("--views", type=int, default=8, help="views to render")
+    p = sub.add_parser("report", help="plots from CDG records: error against inference/training time (Pareto front), rollout RMSE curves")
+    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--out", type=Path, default=Path("report"))
+    p.add_argument("--metric", default="unviewed/extrap/d_avg", help="CDG metric on the error axis (group/phase/stat)")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
+    p.add_argument("what", choices=("data", "render", "sim"),
+                   help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
+                        "sim: train/inference step time of each simulator vs the physics solver")  # fmt: skip
+    p.add_argument("--steps", type=int, default=400, help="data: solver steps to time")
+    p.add_argument("--views", type=int, default=8, help="data/render: views to render")
+    p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
+    p.add_argument("--repeats", type=int, default=3, help="render: timed repeats (minimum reported)")
+    p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
+    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames")
     p.set_defaults(func=cmd_bench)
     return parser
 
@@ -173,9 +185,16 @@ def _pm(v: dict) -> str:
 
 
 def cmd_tables(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.records import iter_records
     from clods_bench.benchmark.tables import write_tables
 
-    paths = write_tables(args.runs, args.out, args.task)
+    if args.task == "all":
+        tasks = [t for t in ("cdg", "nvs", "stability") if any(True for _ in iter_records(args.runs, t))]
+        if not tasks:
+            raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
+    else:
+        tasks = [args.task]
+    paths = [p for task in tasks for p in write_tables(args.runs, args.out, task)]
     for p in paths:
         if p.suffix == ".md":
             console.print(p.read_text())
@@ -183,10 +202,27 @@ def cmd_tables(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.bench import bench_data
+def cmd_report(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.report import write_report
 
-    bench_data(console, steps=args.steps, views=args.views)
+    paths = write_report(args.runs, args.out, args.metric)
+    console.print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "data":
+        from clods_bench.benchmark.bench import bench_data
+
+        bench_data(console, steps=args.steps, views=args.views)
+    elif args.what == "render":
+        from clods_bench.plugins.splatting.bench import print_bench_render
+
+        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views)
+    else:
+        from clods_bench.benchmark.sim_bench import bench_sim
+
+        bench_sim(console, sims=args.sims, frames=args.frames)
     return 0
 
 

@@ -57,3 +57,8 @@ def test_run_and_tables_end_to_end(tmp_path, monkeypatch, capsys) -> None:
     assert "viewed/interp/d_avg" in out and "infer_ms_per_step" in out
     assert main(["tables", "--runs", "runs", "--out", "tables"]) == 0
     assert (Path("tables") / "cdg_flag_ci.md").is_file()
+    assert main(["tables", "--runs", "runs", "--out", "tables", "--task", "nvs"]) == 2  # no nvs records: a clear error
+    assert "no 'nvs' run records" in capsys.readouterr().err
+    assert main(["report", "--runs", "runs", "--out", "report"]) == 0
+    assert (Path("report") / "error_vs_time_flag_ci.png").stat().st_size > 1000
+    assert "constvel" in (Path("report") / "error_vs_time_flag_ci.csv").read_text()

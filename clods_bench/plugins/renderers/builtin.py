@@ -2,10 +2,52 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.descriptors import PluginSpec
+from typing import Any
+
+from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.plugins.renderers.games import GamesConfig
+from clods_bench.plugins.renderers.gs3d import Gs3dConfig
+from clods_bench.plugins.renderers.smgs import SmgsConfig
+
+
+def _build_games(cfg: GamesConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.renderers.games import GamesRenderer
+
+    return GamesRenderer(cfg, seed=ctx.seed, progress=ctx.progress)
+
+
+def _build_smgs(cfg: SmgsConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.renderers.smgs import SmgsRenderer
+
+    return SmgsRenderer(cfg, seed=ctx.seed, progress=ctx.progress)
+
+
+def _build_gs3d(cfg: Gs3dConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.renderers.gs3d import Gs3dRenderer
+
+    return Gs3dRenderer(cfg, seed=ctx.seed, progress=ctx.progress)
 
 
 @hookimpl
 def clods_bench_renderers() -> list[PluginSpec]:
-    return []
+    return [
+        PluginSpec(
+            name="games",
+            description="GaMeS: Gaussians on mesh faces (fixed barycentric weights, Gram-Schmidt frames), constant opacity.",
+            build=_build_games,
+            config_cls=GamesConfig,
+        ),
+        PluginSpec(
+            name="smgs",
+            description="SMGS (CloDS eq. 4): GaMeS with opacity = MLP(world, mesh-space position of each Gaussian).",
+            build=_build_smgs,
+            config_cls=SmgsConfig,
+        ),
+        PluginSpec(
+            name="gs3d",
+            description="Per-frame 3D Gaussian splatting fitted on every frame independently: the NVS upper bound.",
+            build=_build_gs3d,
+            config_cls=Gs3dConfig,
+        ),
+    ]
