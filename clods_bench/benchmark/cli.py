@@ -1,4 +1,4 @@
-"""The `clods-bench` command line: list, data, run, tables, bench."""
+"""The `clods-bench` command line: list, data, run, tables, report, reproduce, compare, seed-spread, bench."""
 
 from __future__ import annotations
 
@@ -51,27 +51,55 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=cmd_data_export)
 
-    p = sub.add_parser("run", help="run a task: cdg, ...")
+    p = sub.add_parser("run", help="run a task: cdg, nvs, stability, dvc, ...")
     p.add_argument("task", help="task name")
     p.add_argument("--sim", help="simulator plugin")
     p.add_argument("--renderer", help="renderer plugin")
+    p.add_argument("--predictor", help="video-predictor plugin (dvc task baselines: copylast, simvp)")
     p.add_argument("--label", help="row label in the tables")
     p.add_argument("--train-subset", choices=("all", "first_half"), help="training trajectories: all (MGN) or first half (MGN*)")
     p.add_argument("--seeds", type=int, nargs="+", help="seeds (default from the preset)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the seeds here (default) or as Ray tasks")
+    p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("tables"))
-    p.add_argument("--task", default="all", help="cdg, nvs, stability, or all (every task with records; default)")
+    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
-    p = sub.add_parser("report", help="plots from CDG records: error against inference/training time (Pareto front), rollout RMSE curves")
+    p = sub.add_parser("report", help="HTML report (report/index.html): every table, error-vs-time and rollout plots, NVS grids, DVC media")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("report"))
     p.add_argument("--metric", default="unviewed/extrap/d_avg", help="CDG metric on the error axis (group/phase/stat)")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("reproduce", help="run the paper's tables from the reproduce plan; tables + manifest.json into --out")
+    p.add_argument("--preset", default="ci", help="built-in preset: ci, small, paper (default: ci)")
+    p.add_argument("--plan", type=Path, help="plan YAML (default: the built-in clods_bench/benchmark/plans/reproduce.yaml)")
+    p.add_argument("--out", type=Path, help="folder of the tables and manifest (default: results/<preset>)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the (run, seed) jobs here (default) or as Ray tasks")
+    p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
+    p.add_argument("--only", nargs="+", default=[], metavar="TABLE", help="only these table ids of the plan")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override applied to every run")
+    p.add_argument("--check", type=Path, metavar="DIR", help="then compare the fresh CSVs with the committed ones in DIR (exit 1 on a moved number)")
+    p.add_argument("--dry-run", action="store_true", help="check the plan and list its runs, run nothing")
+    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("compare", help="compare fresh result CSVs with committed ones (tolerance.yaml of the committed folder)")
+    p.add_argument("committed", type=Path, help="folder with the committed CSV tables and tolerance.yaml")
+    p.add_argument("fresh", type=Path, help="folder with freshly produced CSV tables")
+    p.add_argument("--tolerance", type=Path, help="tolerance YAML (default: COMMITTED/tolerance.yaml)")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("seed-spread", help="seed-to-seed variation of every metric in the run records (justifies the tolerance)")
+    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--task", help="only this task")
+    p.add_argument("--csv", type=Path, help="also write the per-metric rows as CSV")
+    p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
     p.add_argument("what", choices=("data", "render", "sim"),
@@ -111,7 +139,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     table = Table(title="clods-bench: what is installed")
     for col in ("kind", "name", "description", "from"):
         table.add_column(col)
-    for kind in ("task", "simulator", "renderer", "scene"):
+    for kind in ("task", "simulator", "renderer", "video_predictor", "scene"):
         for name in reg.names(kind):
             table.add_row(kind, name, reg.get(kind, name).description, reg.origins[(kind, name)])
     for name in preset_names():
@@ -153,8 +181,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.records import RECORD_FILE
     from clods_bench.benchmark.runner import run_task
 
-    cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
-    rdir = run_task(cfg, _registry(), err_console)
+    cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
+    if args.executor == "local":
+        rdir = run_task(cfg, _registry(), err_console)
+    else:
+        from clods_bench.benchmark.executors import make_executor, run_configs
+
+        summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address), _registry(), err_console)
+        rdir = Path(summary[0]["record_dir"])
     import json
 
     rec = json.loads((rdir / RECORD_FILE).read_text())
@@ -175,7 +209,8 @@ def _metric_order(key: str) -> tuple:
     from clods_bench.benchmark.metrics import GROUPS, PHASES, STATS
 
     order = {name: i for i, name in enumerate((*GROUPS, *PHASES, *STATS))}
-    return tuple(order.get(part, 99) for part in key.split("/")) + (key,)
+    ranks = [order.get(part, 99) for part in key.split("/")]
+    return (*ranks, *[99] * (3 - len(ranks)), key)  # padded: keys of different depths ('psnr', 'all/psnr') compare
 
 
 def _pm(v: dict) -> str:
@@ -189,7 +224,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.tables import write_tables
 
     if args.task == "all":
-        tasks = [t for t in ("cdg", "nvs", "stability") if any(True for _ in iter_records(args.runs, t))]
+        tasks = [t for t in ("cdg", "nvs", "stability", "dvc") if any(True for _ in iter_records(args.runs, t))]
         if not tasks:
             raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     else:
@@ -203,10 +238,76 @@ def cmd_tables(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.report import write_report
+    from clods_bench.benchmark.html_report import build_html_report
 
-    paths = write_report(args.runs, args.out, args.metric)
+    paths = build_html_report(args.runs, args.out, args.metric)
     console.print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.reproduce import build_configs, load_plan, reproduce, run_name
+
+    out = args.out or Path("results") / args.preset
+    if args.check is not None and out.resolve() == args.check.resolve():
+        raise ClodsError("--check compares fresh tables with committed ones: they cannot be the same folder", where=str(out), hint="write the fresh ones elsewhere with --out")
+    overrides = [*args.overrides, *(["progress=false"] if args.no_progress else [])]
+    if args.dry_run:
+        plan = load_plan(args.plan)
+        if args.only:
+            plan.runs = [r for r in plan.runs if r.table in args.only]
+            plan.tables = [t for t in plan.tables if t.id in args.only]
+        runs = build_configs(plan, args.preset, _registry(), overrides)
+        table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
+        for col in ("table / label", "task", "plugins", "seeds", "overrides"):
+            table.add_column(col)
+        for run, cfg in runs:
+            plugins = "+".join(p for p in (cfg.sim, cfg.renderer, getattr(cfg, "predictor", None)) if p)
+            table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run.overrides))
+        console.print(table)
+        return 0
+    manifest = reproduce(args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address)
+    console.print(f"wrote {len(manifest['files'])} table files and manifest.json to {out} in {manifest['wall_seconds_total']:.1f} s")
+    if args.check is not None:
+        return _report_comparison(args.check, out, None)
+    return 0
+
+
+def _report_comparison(committed: Path, fresh: Path, tolerance: Path | None) -> int:
+    from clods_bench.benchmark.compare import compare_dirs
+
+    problems = compare_dirs(committed, fresh, tolerance)
+    if problems:
+        err_console.print(f"[bold red]{len(problems)} number(s) moved beyond tolerance or tables differ[/bold red] ({fresh} vs committed {committed}):", highlight=False)
+        for line in problems:
+            err_console.print(f"  {line}", highlight=False, markup=False)
+        return 1
+    console.print(f"every compared number of {fresh} is within tolerance of {committed}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    return _report_comparison(args.committed, args.fresh, args.tolerance)
+
+
+def cmd_seed_spread(args: argparse.Namespace) -> int:
+    from clods_bench.atomic import write_text
+    from clods_bench.benchmark.compare import seed_spread
+
+    frame = seed_spread(args.runs, args.task)
+    if frame.empty:
+        raise ClodsError("no record with at least 2 seeds and finite metrics", where=str(args.runs))
+    summary = frame.groupby(["task", "label", "preset"]).agg(metrics=("metric", "size"), seeds=("seeds", "max"), median_rel_std=("rel_std", "median"),
+                                                              max_rel_std=("rel_std", "max"), max_rel_dev=("max_rel_dev", "max")).reset_index()  # fmt: skip
+    table = Table(title=f"seed-to-seed variation of the metrics ({args.runs}); rel = / |mean over seeds|")
+    for col in summary.columns:
+        table.add_column(str(col), justify="right")
+    for row in summary.itertuples(index=False):
+        table.add_row(*[f"{v:.3g}" if isinstance(v, float) else str(v) for v in row])
+    console.print(table)
+    if args.csv is not None:
+        write_text(args.csv, frame.to_csv(index=False))
+        console.print(f"wrote {args.csv}")
     return 0
 
 

@@ -87,6 +87,8 @@ class RunConfig:
     """Simulator plugin name (tasks that need one)."""
     renderer: str | None = None
     """Renderer plugin name (tasks that need one)."""
+    predictor: str | None = None
+    """Video-predictor plugin name (the dvc task's pixel-space baselines: copylast, simvp, ...)."""
     label: str | None = None
     """Row label in tables (default: the simulator/renderer name, with '*' for the first-half subset)."""
     train_subset: Literal["all", "first_half"] = "all"
@@ -99,6 +101,8 @@ class RunConfig:
     """Options per simulator name, loaded into that plugin's config dataclass."""
     renderer_config: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Options per renderer name, loaded into that plugin's config dataclass."""
+    video_config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Options per video-predictor name, loaded into that plugin's config dataclass."""
     task_config: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Options per task name, loaded by that task into its config dataclass (e.g. nvs.frame_stride)."""
     runs_dir: str = "runs"

@@ -1,11 +1,13 @@
-"""The two plugin interfaces, documented in one place: `Simulator` and `Renderer`.
+"""The plugin interfaces, documented in one place: `Simulator`, `Renderer` and `VideoPredictor`.
 
 Conventions (see also `clods_bench.datasets.types` and `clods_bench.datasets.cameras`):
 - positions are world coordinates in metres, float32 numpy arrays at the interface;
 - frame t of a trajectory is `t * dt` seconds after frame 0;
 - node types follow MeshGraphNets: NORMAL=0 nodes are simulated, every other type
   (HANDLE=3, OBSTACLE=1) is kinematic: its positions are given for all frames;
-- cameras are OpenCV pinhole cameras (x right, y down, z forward), world-to-camera.
+- cameras are OpenCV pinhole cameras (x right, y down, z forward), world-to-camera;
+- videos are float32 arrays in [0,1], channels last: (T,H,W,3) for one view,
+  (N,T,H,W,3) for N views.
 """
 
 from __future__ import annotations
@@ -110,3 +112,45 @@ def check_rollout(out: Any, inp: RolloutInput, sim_name: str) -> np.ndarray:
     if arr.shape != expected:
         raise ClodsError(f"rollout returned shape {arr.shape}, expected {expected}", where=f"simulator '{sim_name}'")
     return arr.astype(np.float32, copy=False)
+
+
+@runtime_checkable
+class VideoPredictor(Protocol):
+    """A pixel-space video predictor (copy-last-frame, SimVP, ...): the DVC forward task's baselines.
+
+    `fit(videos, ctx)` trains on single-view videos, each a float32 (T_i,H,W,3) array in [0,1]
+    (lengths may differ, sizes may not), and returns statistics (floats; {} for untrained
+    predictors). `predict(context, num_frames, cameras)` gets N views' observed frames,
+    context (N,C,H,W,3) float32 in [0,1] (frame C-1 is the last observed one), and returns
+    the next `num_frames` frames of every view, (N,num_frames,H,W,3) in [0,1]. `cameras`
+    are the N views' cameras (OpenCV convention); a purely 2D predictor may ignore them.
+    Each view is predicted from its own frames only.
+    """
+
+    def fit(self, videos: Sequence[np.ndarray], ctx: FitContext) -> dict[str, float]: ...
+
+    def predict(self, context: np.ndarray, num_frames: int, cameras: Sequence["Camera"]) -> np.ndarray: ...
+
+
+def check_video(arr: Any, where: str, ndim: int = 4) -> np.ndarray:
+    """`arr` as float32 video(s): (T,H,W,3) for ndim=4, (N,T,H,W,3) for ndim=5, finite; ClodsError naming `where` otherwise."""
+    out = np.asarray(arr)
+    layout = "(T,H,W,3)" if ndim == 4 else "(N,T,H,W,3)"
+    if out.ndim != ndim or out.shape[-1] != 3 or min(out.shape) < 1:
+        raise ClodsError(f"expected a video of shape {layout}, got shape {out.shape}", where=where)
+    out = out.astype(np.float32, copy=False)
+    if not np.isfinite(out).all():
+        raise ClodsError("video has NaN/Inf values", where=where)
+    return out
+
+
+def check_prediction(out: Any, context: np.ndarray, num_frames: int, predictor: str) -> np.ndarray:
+    """Check a predictor's output against its (N,C,H,W,3) context: shape (N,num_frames,H,W,3), finite; clipped to [0,1]."""
+    n, _, h, w, _ = context.shape
+    arr = np.asarray(out)
+    expected = (n, num_frames, h, w, 3)
+    if arr.shape != expected:
+        raise ClodsError(f"predict returned shape {arr.shape}, expected {expected}", where=f"video predictor '{predictor}'")
+    if not np.isfinite(arr).all():
+        raise ClodsError("predict returned NaN/Inf pixels", where=f"video predictor '{predictor}'")
+    return np.clip(arr.astype(np.float32, copy=False), 0.0, 1.0)

@@ -30,7 +30,11 @@ def default_label(cfg: RunConfig) -> str:
     """Row label: explicit label, else the plugin name(s), '*' marking the first-half training subset."""
     if cfg.label:
         return cfg.label
-    parts = [p for p in (cfg.sim, cfg.renderer) if p]
+    if cfg.task == "cdg" and cfg.sim and cfg.renderer:  # a simulator learned from video: the CloDS rows
+        from clods_bench.benchmark.clods.labels import clods_label
+
+        return clods_label(cfg)
+    parts = [p for p in (cfg.sim, cfg.renderer, cfg.predictor) if p]
     label = "+".join(parts) or cfg.task
     return label + ("*" if cfg.train_subset == "first_half" else "")
 
@@ -41,6 +45,11 @@ def record_dir(cfg: RunConfig) -> Path:
     for key in ("seeds", "progress", "runs_dir"):
         ident.pop(key)
     ident["data"].pop("root")
+    if cfg.predictor is None:  # fields added with the dvc task: left out when unused, so older records keep their digest
+        ident.pop("predictor")
+        ident.pop("video_config")
+    else:
+        ident["video_config"] = {cfg.predictor: ident["video_config"].get(cfg.predictor, {})}
     digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:8]
     slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg).replace("*", "-star"))
     return Path(cfg.runs_dir) / cfg.task / slug / f"{cfg.data.scene}-{cfg.preset}-{digest}"

@@ -7,11 +7,11 @@ from typing import Any, Iterable
 
 import pluggy
 
-from clods_bench.benchmark.hookspecs import ENTRY_POINT_GROUP, PROJECT, renderers, scenes, simulators, tasks
+from clods_bench.benchmark.hookspecs import ENTRY_POINT_GROUP, PROJECT, renderers, scenes, simulators, tasks, video_predictors
 from clods_bench.errors import ClodsError, unknown_name
 
-HOOKSPEC_MODULES = (simulators, renderers, scenes, tasks)
-KINDS = ("simulator", "renderer", "scene", "task")
+HOOKSPEC_MODULES = (simulators, renderers, scenes, tasks, video_predictors)
+KINDS = ("simulator", "renderer", "scene", "task", "video_predictor")
 
 
 def make_plugin_manager(extra_plugins: Iterable[Any] = (), load_entry_points: bool = True) -> pluggy.PluginManager:
@@ -41,6 +41,7 @@ class Registry:
     renderers: dict[str, Any] = field(default_factory=dict)
     scenes: dict[str, Any] = field(default_factory=dict)
     tasks: dict[str, Any] = field(default_factory=dict)
+    video_predictors: dict[str, Any] = field(default_factory=dict)
     origins: dict[tuple[str, str], str] = field(default_factory=dict)
 
     @classmethod
@@ -52,6 +53,7 @@ class Registry:
             "renderer": (pm.hook.clods_bench_renderers, reg.renderers),
             "scene": (pm.hook.clods_bench_scenes, reg.scenes),
             "task": (pm.hook.clods_bench_tasks, reg.tasks),
+            "video_predictor": (pm.hook.clods_bench_video_predictors, reg.video_predictors),
         }
         for kind, (hook, table) in hooks.items():
             for impl in hook.get_hookimpls():
@@ -77,7 +79,13 @@ class Registry:
         return sorted(self._table(kind))
 
     def _table(self, kind: str) -> dict[str, Any]:
-        tables = {"simulator": self.simulators, "renderer": self.renderers, "scene": self.scenes, "task": self.tasks}
+        tables = {
+            "simulator": self.simulators,
+            "renderer": self.renderers,
+            "scene": self.scenes,
+            "task": self.tasks,
+            "video_predictor": self.video_predictors,
+        }
         if kind not in tables:
             raise unknown_name("plugin kind", kind, list(tables))
         return tables[kind]

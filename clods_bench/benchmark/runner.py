@@ -10,6 +10,7 @@ from rich.console import Console
 
 from clods_bench.benchmark.config import RunConfig, save_config
 from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.determinism import seed_everything
 from clods_bench.benchmark.records import aggregate, load_seed_result, record_dir, save_seed_result
 from clods_bench.benchmark.registry import Registry
 from clods_bench.errors import ClodsError
@@ -29,6 +30,13 @@ def check_plugins(cfg: RunConfig, registry: Registry) -> None:
             raise ClodsError(f"task '{cfg.task}' needs a renderer", where="--renderer", hint=f"one of {registry.names('renderer')}")
         spec = registry.get("renderer", cfg.renderer)
         spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
+    if cfg.sim and "sim" not in task.needs:  # optional plugins (dvc takes --sim --renderer or --predictor): checked all the same
+        registry.get("simulator", cfg.sim).make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
+    if cfg.renderer and "renderer" not in task.needs:
+        registry.get("renderer", cfg.renderer).make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
+    if cfg.predictor:
+        spec = registry.get("video_predictor", cfg.predictor)
+        spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
 
 
 def run_task(
@@ -62,6 +70,7 @@ def run_task(
         console.print(f"[bold]{cfg.task}[/bold] seed {seed} ({rdir})")
         work = rdir / f"seed_{seed}"
         work.mkdir(parents=True, exist_ok=True)
+        seed_everything(seed)
         t0 = time.perf_counter()
         result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))
         result.timings.setdefault("seed_seconds", time.perf_counter() - t0)

@@ -125,6 +125,61 @@ def nvs_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: l
     return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
 
 
+DVC_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 4 reports SSIM x10, LPIPS x100, RMSE x100
+    ("psnr", "PSNR (dB) ↑", 1.0, 4),
+    ("ssim", "SSIM×10 ↑", 10.0, 3),
+    ("lpips", "LPIPS×100 ↓", 100.0, 3),
+    ("rmse", "RMSE×100 ↓", 100.0, 2),
+)
+
+
+def dvc_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame in the paper's Table 4 layout, numeric frame for CSV with the scaled numbers, footnotes).
+
+    Rows are video predictors and simulator+renderer pairs; a missing LPIPS gets 'unavailable [k]'.
+    """
+    display_rows, numeric_rows, index, notes = [], [], [], []
+    for rec in records:
+        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
+        for key, name, scale, digits in DVC_COLUMNS:
+            col = key if scale == 1.0 else f"{key}_x{scale:g}"
+            m = rec["metrics"].get(key)
+            if m is None or m["mean"] is None:
+                reasons = _lpips_reasons(rec) if key == "lpips" else []
+                marks = []
+                for reason in reasons or ["not recorded"]:
+                    if reason not in notes:
+                        notes.append(reason)
+                    marks.append(f"[{notes.index(reason) + 1}]")
+                row[("Quality", name)] = "unavailable " + "".join(marks)
+                num[f"{col}/mean"] = num[f"{col}/std"] = float("nan")
+            else:
+                row[("Quality", name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
+                num[f"{col}/mean"], num[f"{col}/std"] = scale * m["mean"], scale * (m["std"] or 0.0)
+        t = rec["timings"]
+        pred = t.get("predict_ms_per_frame", {}).get("mean", float("nan"))
+        fit = t.get("fit_seconds", {}).get("mean", float("nan"))
+        row[("Time", "predict ms/frame")] = f"{pred:.3g}"
+        row[("Time", "fit s")] = f"{fit:.3g}"
+        num["predict_ms_per_frame"], num["fit_seconds"] = pred, fit
+        display_rows.append(row)
+        numeric_rows.append(num)
+        index.append(rec["label"])
+    display = pd.DataFrame(display_rows, index=pd.Index(index, name="Model"))
+    display.columns = pd.MultiIndex.from_tuples(display.columns)
+    return display, pd.DataFrame(numeric_rows), [f"[{k + 1}] {n}" for k, n in enumerate(notes)]
+
+
+def dvc_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
+    """Caption of the DVC table: what is scored, over how many seeds, and the footnotes."""
+    seeds = sorted({len(r["seeds"]) for r in records})
+    text = (
+        f"DVC forward / cloth video prediction ({scene}, preset {preset}); extrapolation frames of the scored views; "
+        f"mean ± std over {'/'.join(map(str, seeds))} seeds; predict ms per image (one view, one frame)."
+    )
+    return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
+
+
 def _divergence_cell(rec: dict[str, Any]) -> tuple[str, float, str]:
     """('stable' | 'frame k (n/N rollouts): reason', first failing frame or NaN, its reason) over every seed's rollouts."""
     failed, rollouts = [], 0
@@ -220,8 +275,8 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
     """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task`; return the paths."""
     if task == "stability":
         return write_stability_tables(runs_dir, out_dir)
-    if task not in ("cdg", "nvs"):
-        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs")
+    if task not in ("cdg", "nvs", "dvc"):
+        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs, dvc, stability")
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for _, rec in iter_records(runs_dir, task):
         groups.setdefault((rec["scene"], rec["preset"]), []).append(rec)
@@ -234,6 +289,9 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
         if task == "nvs":
             display, numeric, notes = nvs_frame(recs)
             caption = nvs_caption(scene, preset, recs, notes)
+        elif task == "dvc":
+            display, numeric, notes = dvc_frame(recs)
+            caption = dvc_caption(scene, preset, recs, notes)
         else:
             display, numeric = cdg_frame(recs)
             seeds = sorted({len(r["seeds"]) for r in recs})

@@ -20,7 +20,8 @@ def test_overrides_are_typed() -> None:
     cfg = load_config("ci", overrides=["data.num_train=8", "seeds=[3, 4]", "data.fov_deg=40", "sim_config.mgn.latent=64"])
     assert cfg.data.num_train == 8 and cfg.seeds == [3, 4]
     assert cfg.data.fov_deg == 40.0 and isinstance(cfg.data.fov_deg, float)
-    assert cfg.sim_config["mgn"] == {"latent": 64}
+    assert cfg.sim_config["mgn"]["latent"] == 64  # merged into the preset's sim_config.mgn, which keeps its keys
+    assert cfg.sim_config["mgn"]["train_steps"] == load_config("ci").sim_config["mgn"]["train_steps"]
     assert parse_override("a.b=true") == ("a.b", True)
 
 

@@ -87,3 +87,32 @@ def test_bench_sim_times_per_step_and_skips_unknown() -> None:
 def test_bench_sim_physics_runs_on_a_small_flag() -> None:
     out = bench_sim(Console(quiet=True), sims=("physics", "constvel"), frames=5, resolution=(6, 4))
     assert out["physics"].infer_ms_per_step > 0 and out["constvel"].note == "not trained"
+
+
+@dataclass(frozen=True)
+class WarmupConfig:
+    """Options of a learned simulator whose first `warmup_steps` steps only gather statistics (like MGN's)."""
+
+    train_steps: int = 10
+    warmup_steps: int = 1000
+
+
+class FakeWarmup(FakeLearned):
+    """Warm-up steps cost 0.01 s, optimiser steps 0.25 s (on the fake clock)."""
+
+    def fit(self, train, ctx):
+        warm = min(self.cfg.train_steps, self.cfg.warmup_steps)
+        CLOCK.now += 5.0 + 0.01 * warm + 0.25 * (self.cfg.train_steps - warm)
+        return {}
+
+
+class WarmupFakes:
+    @hookimpl
+    def clods_bench_simulators(self) -> list[PluginSpec]:
+        return [PluginSpec("warm", "fake", lambda cfg, ctx: FakeWarmup(cfg), WarmupConfig, learned=True)]
+
+
+def test_bench_sim_times_optimiser_steps_not_warm_up() -> None:
+    reg = Registry.from_plugin_manager(make_plugin_manager(extra_plugins=[WarmupFakes()], load_entry_points=False))
+    out = bench_sim(Console(quiet=True), sims=("warm",), frames=5, resolution=(5, 3), registry=reg, reference="warm", clock=CLOCK)
+    assert out["warm"].train_s_per_step == pytest.approx(0.25) and "warmup_steps=0" in out["warm"].note

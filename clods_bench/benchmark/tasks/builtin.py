@@ -5,6 +5,7 @@ from __future__ import annotations
 from clods_bench.benchmark.descriptors import TaskSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
+from clods_bench.benchmark.tasks.dvc import run_dvc
 from clods_bench.benchmark.tasks.nvs import run_nvs
 from clods_bench.benchmark.tasks.stability import run_stability
 
@@ -29,5 +30,10 @@ def clods_bench_tasks() -> list[TaskSpec]:
             description="Stability: long rollouts (2x the stored horizon) watched for NaN, runaway strain and energy; divergence step and reason.",
             run=run_stability,
             needs=("sim",),
+        ),
+        TaskSpec(
+            name="dvc",
+            description="DVC forward / video prediction: a video predictor (--predictor) or a simulator rolled out and rendered (--sim --renderer); PSNR/SSIM/LPIPS/RMSE (Table 4).",
+            run=run_dvc,
         ),
     ]

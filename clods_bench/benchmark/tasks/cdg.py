@@ -45,12 +45,20 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     cfg = ctx.config
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
-    sim = build_simulator(ctx)
-
-    train_ids = splits.train if cfg.train_subset == "all" else splits.first_half
-    train = [store.load_trajectory(i).slice(0, splits.interp_steps + 1) for i in train_ids]
+    clods_extra: dict[str, object] = {}
     t0 = time.perf_counter()
-    fit_stats = sim.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress))
+    if cfg.renderer:  # learned from video: the CloDS pipeline (stages 1-3) replaces mesh supervision
+        from clods_bench.benchmark.clods.pipeline import run_pipeline, video_train_ids
+
+        train_ids = video_train_ids(ctx)
+        clods = run_pipeline(ctx, train_ids)
+        sim, fit_stats = clods.simulator, clods.stats
+        clods_extra = {"egt_curve": clods.egt_curve, "egt_per_trajectory": clods.egt_per_trajectory}
+    else:
+        sim = build_simulator(ctx)
+        train_ids = splits.train if cfg.train_subset == "all" else splits.first_half
+        train = [store.load_trajectory(i).slice(0, splits.interp_steps + 1) for i in train_ids]
+        fit_stats = sim.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress))
     fit_seconds = time.perf_counter() - t0
 
     groups = {"viewed": list(splits.viewed), "unviewed": list(splits.unviewed)}
@@ -82,4 +90,5 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     }
     timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
     mean_curves = {g: np.mean(np.stack(c), axis=0).tolist() for g, c in curves.items() if c}
-    return TaskResult(metrics=metrics, timings=timings, curves=mean_curves, extra={"diverged": diverged, "train_ids": list(train_ids)})
+    extra = {"diverged": diverged, "train_ids": list(train_ids), **clods_extra}
+    return TaskResult(metrics=metrics, timings=timings, curves=mean_curves, extra=extra)

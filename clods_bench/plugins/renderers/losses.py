@@ -54,10 +54,11 @@ def ssim_map(a: Tensor, b: Tensor, padding: Padding = "zero", data_range: float 
     y = b.reshape(-1, H, W, 3).permute(0, 3, 1, 2)
     w = gaussian_window(dtype=a.dtype).to(a.device)
     pad = WINDOW // 2 if padding == "zero" else 0
-    mu_x, mu_y = _blur(x, w, pad), _blur(y, w, pad)
-    sxx = _blur(x * x, w, pad) - mu_x * mu_x
-    syy = _blur(y * y, w, pad) - mu_y * mu_y
-    sxy = _blur(x * y, w, pad) - mu_x * mu_y
+    # one depthwise blur of the five stacked statistics (2 conv calls instead of 10: the fit loop's hot spot)
+    mu_x, mu_y, exx, eyy, exy = _blur(torch.cat([x, y, x * x, y * y, x * y], dim=1), w, pad).chunk(5, dim=1)
+    sxx = exx - mu_x * mu_x
+    syy = eyy - mu_y * mu_y
+    sxy = exy - mu_x * mu_y
     c1, c2 = (K1 * data_range) ** 2, (K2 * data_range) ** 2
     s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
     return s.permute(0, 2, 3, 1).reshape(*lead, s.shape[-2], s.shape[-1], 3)

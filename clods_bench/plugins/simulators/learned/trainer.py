@@ -14,6 +14,8 @@ errors, each divided by the output normaliser's std. The first step's target is 
 x_{t+1}; with K = 1 the two losses are equal. Dividing by the std keeps the loss scale of the
 one-step loss (eq. 8's MSE in metres^2 is ~1e-6); averaging instead of summing over steps only
 rescales it.
+Targets, integration and position errors are computed in float64: positions are ~1 m while
+accelerations can be ~1e-4 m per frame^2, which float32 differences resolve only to ~0.1 %.
 
 Everything random comes from the trainer's generator and all state (parameters, normaliser sums,
 Adam moments, generator, step) is in `state_dict`, so a resumed run repeats an uninterrupted one.
@@ -114,8 +116,8 @@ class Trainer:
 
     def _target_acceleration(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
         """a* = (x_{t+1} + (1 - gamma) n) - 2 (x_t + n) + x_{t-1}."""
-        f = batch.frames
-        return (f[2] + (1.0 - self.config.noise_gamma) * noise) - 2.0 * (f[1] + noise) + f[0]
+        f, n = batch.frames[:3].double(), noise.double()  # float64: x ~ 1 m, a ~ 1e-4 m cancels in float32
+        return ((f[2] + (1.0 - self.config.noise_gamma) * n) - 2.0 * (f[1] + n) + f[0]).float()
 
     def one_step_loss(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
         """MGN loss: mean over NORMAL nodes of the squared error of the normalised acceleration."""
@@ -126,19 +128,20 @@ class Trainer:
 
     def rollout_loss(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
         """CloDS eq. 8: K unrolled steps, mean of node-mean squared position errors over the output std."""
-        f, topo, model = batch.frames, batch.topo, self.model
-        prev, cur = f[0], f[1] + noise
+        topo, model = batch.topo, self.model
+        f, n = batch.frames.double(), noise.double()  # integrate and compare in float64 (see _target_acceleration)
+        prev, cur = f[0], f[1] + n
         model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
-        scale = model.output_normalizer.std
+        scale = model.output_normalizer.std.double()
         total = f.new_zeros(())
         steps = f.shape[0] - 2
         for k in range(1, steps + 1):
-            out = model(topo, batch.key, cur, prev, accumulate=(k == 1))
-            nxt = integrate(cur, prev, model.acceleration(out), topo.normal, f[k + 1])
-            target = f[k + 1] + (1.0 - self.config.noise_gamma) * noise if k == 1 else f[k + 1]
+            out = model(topo, batch.key, cur.float(), prev.float(), accumulate=(k == 1))
+            nxt = integrate(cur, prev, model.acceleration(out).double(), topo.normal, f[k + 1])
+            target = f[k + 1] + (1.0 - self.config.noise_gamma) * n if k == 1 else f[k + 1]
             total = total + (((nxt - target) / scale) ** 2).sum(dim=1)[topo.normal].mean()
             prev, cur = cur, nxt
-        return total / steps
+        return (total / steps).float()
 
     def train_step(self) -> float | None:
         """One step: accumulate-only during warm-up (returns None), else an Adam step (returns the loss)."""

@@ -1,0 +1,103 @@
+"""Options of the CloDS pipeline (`task_config.clods.*`), loaded into one typed dataclass."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
+from clods_bench.errors import ClodsError
+
+Variant = Literal["scratch", "finetune"]
+InitNoise = Literal["none", "gaussian", "translation", "scaling"]
+StartGuess = Literal["previous", "velocity"]
+WHERE = "task_config.clods"
+
+
+@dataclass(frozen=True)
+class ClodsConfig:
+    """Stage 2 (mesh extraction) settings, stage 3 overrides and the CDG row variant."""
+
+    variant: Variant = "scratch"
+    """'scratch': the simulator learns from the extracted meshes alone (CloDS*, CloDS**); 'finetune': it is
+    first trained on the meshes of the first half (MGN*) and then fine-tuned on the videos of the second half (CloDS)."""
+    init_noise: InitNoise = "none"
+    """Initial mesh given to stages 1-2: the ground truth ('none', as in the paper's experiments) or it with one of
+    the paper's robustness noises (appendix table 'CDR under different noise conditions')."""
+    gaussian_variance: float = 0.001
+    """'gaussian': variance (m^2) of the zero-mean noise added to every node (paper: 0.001)."""
+    translation_variance: float = 0.001
+    """'translation': variance (m^2) of the one Gaussian offset moving the whole mesh."""
+    translation_axes: str = "xyz"
+    """'translation': the axes the offset acts along (paper: X, Y and Z separately, errors averaged)."""
+    scale_range: tuple[float, float] = (0.95, 1.05)
+    """'scaling': the mesh is scaled about its centroid by a factor drawn uniformly from this range."""
+    gamma: float = 0.001
+    """Weight of the edge-length loss L_edge (eq. 6); 0 switches it off (ablation 'w/o L_edge')."""
+    iterations: int = 40
+    """Iteration cap of the per-frame offset optimisation."""
+    min_iterations: int = 10
+    """Iterations always run before the convergence test."""
+    rel_tolerance: float = 1e-3
+    """Converged when the loss has not dropped below (1 - rel_tolerance) times its best for `patience` iterations."""
+    patience: int = 6
+    """See `rel_tolerance`."""
+    learning_rate: float = 0.003
+    """Adam step size (m) of the vertex offsets; it decays exponentially to `lr_final_factor` of itself over the cap."""
+    lr_final_factor: float = 0.2
+    """See `learning_rate`."""
+    start: StartGuess = "velocity"
+    """Start of frame t+1's optimisation: the previous mesh ('previous', Algorithm S1) or extrapolated by its velocity."""
+    num_cameras: int | None = None
+    """Training cameras used by stages 1-2 (the first ones of the training rig); None: all (ablation 'number of cameras')."""
+    extraction_seed: int | None = None
+    """Seed of stages 1-2 (renderer fit, initial-mesh noise); None: the run's seed. A fixed value lets every seed
+    of a run reuse one cached extraction, so the seeds then repeat stage 3 only."""
+    cache_dir: str | None = None
+    """Where stage 1-2 results are cached; None: `<runs_dir>/clods_cache`."""
+    num_threads: int | None = None
+    """torch CPU threads in stages 1-2; None leaves torch's setting."""
+    sim_overrides: dict[str, Any] = field(default_factory=lambda: {"loss": "rollout", "rollout_length": 8})
+    """Stage 3: options laid over `sim_config.<sim>` for learned simulators (paper eq. 8: the 8-step rollout loss)."""
+
+    def validate(self) -> None:
+        """Raise ClodsError naming the first field out of range."""
+        for name in ("iterations", "patience"):
+            if getattr(self, name) < 1:
+                raise ClodsError(f"must be >= 1, got {getattr(self, name)}", where=f"{WHERE}.{name}")
+        if not 0 <= self.min_iterations <= self.iterations:
+            raise ClodsError(f"must be in [0, iterations={self.iterations}], got {self.min_iterations}", where=f"{WHERE}.min_iterations")
+        for name in ("gamma", "rel_tolerance", "gaussian_variance", "translation_variance"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ClodsError(f"must be a finite number >= 0, got {value}", where=f"{WHERE}.{name}")
+        for name in ("learning_rate", "lr_final_factor"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ClodsError(f"must be > 0, got {value}", where=f"{WHERE}.{name}")
+        lo, hi = self.scale_range if len(self.scale_range) == 2 else (0.0, -1.0)
+        if not 0 < lo <= hi:
+            raise ClodsError(f"must be [low, high] with 0 < low <= high, got {list(self.scale_range)}", where=f"{WHERE}.scale_range")
+        if not self.translation_axes or set(self.translation_axes) - set("xyz"):
+            raise ClodsError(f"must be a non-empty combination of x, y, z, got '{self.translation_axes}'", where=f"{WHERE}.translation_axes")
+        if self.num_cameras is not None and self.num_cameras < 1:
+            raise ClodsError(f"must be >= 1 or null, got {self.num_cameras}", where=f"{WHERE}.num_cameras")
+        if self.num_threads is not None and self.num_threads < 1:
+            raise ClodsError(f"must be >= 1 or null, got {self.num_threads}", where=f"{WHERE}.num_threads")
+
+    def extraction_identity(self) -> dict[str, Any]:
+        """The fields that change the extracted meshes (part of the cache key); stage-3 and bookkeeping fields are left out."""
+        d = dataclasses.asdict(self)
+        for key in ("variant", "cache_dir", "num_threads", "sim_overrides", "extraction_seed"):
+            d.pop(key)
+        d["scale_range"] = list(d["scale_range"])
+        return d
+
+
+def clods_config(cfg: RunConfig) -> ClodsConfig:
+    """The run's `task_config.clods` as a checked ClodsConfig."""
+    opts: ClodsConfig = dataclass_from_dict(ClodsConfig, dict(cfg.task_config.get("clods", {})), where=WHERE, prefix="clods.")
+    opts.validate()
+    return opts

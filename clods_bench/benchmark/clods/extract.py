@@ -1,0 +1,150 @@
+"""Stage 2 (paper eq. 6-7, Algorithm S1): recover the mesh of every frame from the video through the renderer.
+
+For t = 0, 1, ...: start from the mesh of frame t (or extrapolated by its velocity), optimise vertex
+offsets with Adam so that the render on the training cameras matches frame t+1 under
+L1 + gamma * L_edge, edge lengths held to the initial mesh's. Non-NORMAL (handle) nodes stay at
+their initial positions. A frame stops at the iteration cap or when the loss has not improved by
+`rel_tolerance` for `patience` iterations; the lowest-loss mesh seen is kept.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from rich.progress import Progress
+from torch import Tensor
+
+from clods_bench.benchmark.clods.cache import ExtractionCache, Extracted
+from clods_bench.benchmark.clods.config import ClodsConfig
+from clods_bench.benchmark.clods.edge import edge_lengths, edge_loss, mesh_edges
+from clods_bench.datasets.types import NORMAL
+from clods_bench.errors import ClodsError
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Use `n` torch CPU threads inside the block (None: leave the setting alone)."""
+    if n is None:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+@dataclass(frozen=True)
+class FrameFit:
+    """One frame's recovered mesh and its optimisation statistics."""
+
+    verts: np.ndarray  # (V,3) float32
+    iterations: int
+    loss: float
+
+
+@dataclass(frozen=True)
+class MeshPrior:
+    """What stays fixed over a trajectory: topology edges, rest lengths (initial mesh) and the free-node mask."""
+
+    edges: Tensor  # (E,2) int64
+    rest_lengths: Tensor  # (E,) float32, first-frame edge lengths (eq. 7's d(x_i0, x_j0))
+    free: Tensor  # (V,1) float32: 1 at NORMAL nodes, 0 at handles
+
+    @classmethod
+    def from_mesh(cls, initial: np.ndarray, cells: np.ndarray, node_type: np.ndarray) -> "MeshPrior":
+        """Edges and lengths of `initial` (V,3); handles are the non-NORMAL nodes of `node_type`."""
+        edges = mesh_edges(cells)
+        rest = edge_lengths(torch.as_tensor(initial, dtype=torch.float32), edges)
+        free = torch.as_tensor(np.asarray(node_type) == NORMAL, dtype=torch.float32)[:, None]
+        return cls(edges, rest, free)
+
+
+def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tensor, prior: MeshPrior, cfg: ClodsConfig) -> FrameFit:
+    """Optimise offsets of the free nodes of `start` (V,3) so the render matches `target` (N,H,W,3) in [0,1]."""
+    offset = torch.zeros_like(start, requires_grad=True)
+    opt = torch.optim.Adam([offset], lr=cfg.learning_rate)
+    best, best_x, best_seen, stale, it = math.inf, start.detach().clone(), math.inf, 0, 0
+    for it in range(1, cfg.iterations + 1):
+        for group in opt.param_groups:
+            group["lr"] = cfg.learning_rate * cfg.lr_final_factor ** ((it - 1) / max(cfg.iterations - 1, 1))
+        x = start + offset * prior.free
+        loss = (renderer.render(x, cameras) - target).abs().mean()
+        if cfg.gamma > 0:
+            loss = loss + cfg.gamma * edge_loss(x, prior.edges, prior.rest_lengths)
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise ClodsError(f"stage-2 loss became {value} at iteration {it}", where="clods stage 2", hint="lower task_config.clods.learning_rate")
+        if value < best_seen:
+            best_seen, best_x = value, x.detach().clone()
+        if value < best * (1.0 - cfg.rel_tolerance):
+            best, stale = value, 0
+        else:
+            stale += 1
+        if it >= max(cfg.min_iterations, 1) and stale >= cfg.patience:
+            break
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    return FrameFit(best_x.numpy().astype(np.float32), it, best_seen)
+
+
+def start_guess(done: np.ndarray, cfg: ClodsConfig, free: np.ndarray) -> np.ndarray:
+    """Starting mesh of the next frame from the meshes `done` (k,V,3) so far: the last one, or velocity-extrapolated."""
+    last = done[-1]
+    if cfg.start == "velocity" and done.shape[0] >= 2:
+        guess = last.copy()
+        guess[free] = 2.0 * last[free] - done[-2][free]
+        return guess
+    return last.copy()
+
+
+def extract_trajectory(
+    renderer: Any,
+    cameras: Sequence[Any],
+    video: np.ndarray,
+    initial: np.ndarray,
+    cells: np.ndarray,
+    node_type: np.ndarray,
+    cfg: ClodsConfig,
+    cache: ExtractionCache | None = None,
+    index: int = 0,
+    bar: Progress | None = None,
+) -> Extracted:
+    """Meshes of frames 0..T-1 of `video` (T,N,H,W,3) uint8 seen by `cameras`, frame 0 being `initial` (V,3).
+
+    With a cache, a finished trajectory is read back, and a partial one resumes after its last frame;
+    the partial file is rewritten after every frame.
+    """
+    if cache is not None and (done := cache.load(index)) is not None and done.num_frames == video.shape[0]:
+        return done
+    ext = cache.load(index, partial=True) if cache is not None else None
+    if ext is None or ext.num_frames > video.shape[0]:
+        ext = Extracted(np.asarray(initial, np.float32)[None], np.zeros(1, np.int64), np.full(1, np.nan), np.zeros(1))
+    prior = MeshPrior.from_mesh(ext.world_pos[0], cells, node_type)
+    free = np.asarray(node_type) == NORMAL
+    job = bar.add_task(f"stage 2: trajectory {index}", total=video.shape[0] - 1, completed=ext.num_frames - 1, info="") if bar else None
+    with torch_threads(cfg.num_threads):
+        for t in range(ext.num_frames, video.shape[0]):
+            target = torch.from_numpy(np.asarray(video[t], dtype=np.float32) / 255.0)
+            start = torch.from_numpy(start_guess(ext.world_pos, cfg, free))
+            t0 = time.perf_counter()
+            fit = fit_frame(renderer, cameras, target, start, prior, cfg)
+            ext = ext.append(fit.verts, fit.iterations, fit.loss, time.perf_counter() - t0)
+            if cache is not None:
+                cache.save(index, ext, partial=True)
+            if bar is not None and job is not None:
+                bar.update(job, advance=1, info=f"{fit.iterations} it, loss {fit.loss:.4f}")
+    if cache is not None:
+        cache.save(index, ext)
+    if bar is not None and job is not None:
+        bar.remove_task(job)
+    return ext

@@ -1,0 +1,127 @@
+"""The CloDS pipeline end to end: stage 1 (renderer), stage 2 (mesh extraction), stage 3 (simulator).
+
+Public API (the CDG and DVC tasks use it): `train_from_video(ctx, train_ids)` and `fit_stage1(...)`;
+`run_pipeline` also returns the per-frame E-GT curve (extracted vs ground-truth mesh RMSE).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
+from clods_bench.benchmark.clods.extract import extract_trajectory
+from clods_bench.benchmark.clods.noise import initial_mesh
+from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
+from clods_bench.benchmark.clods.stage3 import train_simulator
+from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.interfaces import Simulator
+from clods_bench.benchmark.metrics import rmse_per_step
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import Trajectory
+from clods_bench.errors import ClodsError
+
+__all__ = ["PipelineResult", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
+
+
+@dataclass
+class PipelineResult:
+    """A trained simulator, flat statistics and the mean E-GT curve (one value per extracted frame)."""
+
+    simulator: Simulator
+    stats: dict[str, float]
+    egt_curve: list[float] = field(default_factory=list)
+    egt_per_trajectory: dict[str, float] = field(default_factory=dict)
+
+
+def video_train_ids(ctx: TaskContext) -> list[int]:
+    """Trajectories whose videos train the row: CloDS** all training ones, CloDS* the first half, CloDS the second half."""
+    from clods_bench.benchmark.tasks.cdg import split_spec
+
+    cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
+    if opts.variant == "finetune":
+        if cfg.train_subset != "all":
+            raise ClodsError("the finetune variant trains on first-half meshes and second-half videos; train_subset does not apply",
+                             where="train_subset", hint="leave it at 'all' with task_config.clods.variant=finetune")  # fmt: skip
+        return list(splits.second_half)
+    return list(splits.train if cfg.train_subset == "all" else splits.first_half)
+
+
+def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
+    """Training camera indices used by stages 1-2 (the first `num_cameras` of the training rig)."""
+    from clods_bench.benchmark.tasks.cdg import split_spec
+
+    views = list(split_spec(ctx).train_views)
+    if opts.num_cameras is not None:
+        if opts.num_cameras > len(views):
+            raise ClodsError(f"{opts.num_cameras} cameras asked, the rig has {len(views)} training cameras", where="task_config.clods.num_cameras")
+        views = views[: opts.num_cameras]
+    return views
+
+
+def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
+    """Stages 1-3 on the videos of `train_ids` (frames 0..interp_steps, training cameras only)."""
+    from clods_bench.benchmark.tasks.cdg import split_spec
+
+    cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
+    if not cfg.data.render_frames:
+        raise ClodsError("the CloDS pipeline learns from video and needs rendered frames", where="data.render_frames", hint="set it to true")
+    if not train_ids:
+        raise ClodsError("no training videos", where="clods pipeline")
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    views = _views(ctx, opts)
+    cams = [store.cameras()[v] for v in views]
+    frames = splits.interp_steps + 1
+    seed = extraction_seed(ctx, opts)
+    gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
+    videos = [np.asarray(store.load_frames(i)[:frames, views]) for i in train_ids]
+    initial = np.stack([initial_mesh(g.world_pos[0], opts, seed, i) for g, i in zip(gts, train_ids)])
+
+    renderer, stats, stage1_key = fit_stage1_keyed(ctx, initial, gts[0].cells, gts[0].mesh_pos, np.stack([v[0] for v in videos]), cams)
+    identity = {"stage1": stage1_key, "clods": opts.extraction_identity(), "data": cfg.data.identity(), "frames": frames, "views": views}
+    cache = ExtractionCache(cache_root(ctx, opts), digest(identity), identity)
+
+    t0, extracted, cached = time.perf_counter(), [], 0
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("{task.fields[info]}"))
+    with Progress(*columns, transient=True, disable=not cfg.progress) as bar:
+        for g, video, i, init in zip(gts, videos, train_ids, initial):
+            cached += cache.load(i) is not None
+            extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar))
+    stats["stage2_wall_seconds"] = time.perf_counter() - t0
+
+    seconds = np.concatenate([e.seconds[1:] for e in extracted])
+    iters = np.concatenate([e.iterations[1:] for e in extracted])
+    egt = np.stack([rmse_per_step(e.world_pos, g.world_pos) for e, g in zip(extracted, gts)])  # (B, frames)
+    stats.update({
+        "stage2_seconds": float(seconds.sum()),
+        "stage2_ms_per_frame": 1000.0 * float(seconds.mean()),
+        "stage2_iterations_per_frame": float(iters.mean()),
+        "stage2_frames": float(seconds.size),
+        "stage2_cached_trajectories": float(cached),
+        "egt_rmse": float(egt[:, 1:].mean()),
+        "egt_end": float(egt[:, -1].mean()),
+        "egt_initial": float(egt[:, 0].mean()),
+    })  # fmt: skip
+
+    meshes = [
+        Trajectory(g.cells, g.mesh_pos, g.node_type, e.world_pos.astype(np.float32), g.dt, {**g.meta, "source": "clods stage 2", "cache": cache.key})
+        for g, e in zip(gts, extracted)
+    ]
+    pretrain = [store.load_trajectory(i).slice(0, frames) for i in splits.first_half] if opts.variant == "finetune" else None
+    sim, sim_stats = train_simulator(ctx, opts, meshes, pretrain)
+    stats.update(sim_stats)
+    per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, egt)}
+    return PipelineResult(sim, stats, egt.mean(axis=0).tolist(), per_traj)
+
+
+def train_from_video(ctx: TaskContext, train_ids: Sequence[int]) -> tuple[Simulator, dict[str, float]]:
+    """Stages 1-3 on the videos of `train_ids`; returns the trained simulator and timings/metrics
+    (stage1_seconds, stage2_ms_per_frame, stage2_seconds, egt_rmse, stage3_seconds, ...)."""
+    result = run_pipeline(ctx, train_ids)
+    return result.simulator, result.stats
+

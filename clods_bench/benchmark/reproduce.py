@@ -1,0 +1,328 @@
+"""`clods-bench reproduce`: run the paper's tables from a plan (YAML data) and write them with a manifest.
+
+The plan (`clods_bench/benchmark/plans/reproduce.yaml` by default) lists tables and runs; each
+run names its task, plugins, row label, `--set` overrides and the table it belongs to. Adding
+a row is editing YAML. Every run is checked before anything starts: an unregistered task or
+plugin, an unknown config key or a run pointing at an unknown table fails the whole command,
+listing every problem. The runs' records go to the preset's `runs_dir` (resumable per seed);
+the tables (markdown, LaTeX, CSV, one set per table id) and `manifest.json` go to `--out`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Sequence
+
+import pandas as pd
+from rich.console import Console
+
+from clods_bench.atomic import write_json, write_text
+from clods_bench.benchmark.config import RunConfig, dataclass_from_dict, load_config, read_yaml
+from clods_bench.benchmark.environment import git_commit, package_versions
+from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.errors import ClodsError
+
+PLAN_VERSION = 1
+MANIFEST_FILE = "manifest.json"
+
+
+@dataclass
+class PlanTable:
+    """One output table: its id (file stem), title (caption) and the task of every row."""
+
+    id: str
+    """File stem in the output folder, e.g. table2_cdg."""
+    title: str
+    """Caption written above the table."""
+    task: str
+    """Task of every run in this table (cdg, nvs, stability, dvc, ...)."""
+    overrides: list[str] = field(default_factory=list)
+    """Overrides applied to every run of this table (after the plan's, before the run's own)."""
+
+
+@dataclass
+class PlanRun:
+    """One row: a task run with its plugins and overrides, over the plan's seeds."""
+
+    table: str
+    """Id of the table this row belongs to."""
+    task: str
+    """Task name (must be registered)."""
+    label: str
+    """Row label (unique within its table; also names the record directory)."""
+    sim: str | None = None
+    """Simulator plugin."""
+    renderer: str | None = None
+    """Renderer plugin."""
+    predictor: str | None = None
+    """Video predictor (tasks that take one, e.g. dvc)."""
+    train_subset: str | None = None
+    """'all' or 'first_half' (MGN*)."""
+    overrides: list[str] = field(default_factory=list)
+    """`--set` style overrides, e.g. renderer_config.smgs.gaussians_per_face=10."""
+
+
+@dataclass
+class ReproducePlan:
+    """The plan: tables, their runs, seeds and overrides applied to every run."""
+
+    version: int = PLAN_VERSION
+    """Plan schema version."""
+    description: str = ""
+    """One line shown by `reproduce --dry-run`."""
+    seeds: list[int] | None = None
+    """Seeds of every run (default: the preset's); at least 2."""
+    overrides: list[str] = field(default_factory=list)
+    """Overrides applied to every run before its own."""
+    tables: list[PlanTable] = field(default_factory=list)
+    """Output tables, in order."""
+    runs: list[PlanRun] = field(default_factory=list)
+    """Rows, in table order."""
+
+
+def default_plan_path() -> Path:
+    """The built-in plan shipped with the package."""
+    return Path(str(resources.files("clods_bench.benchmark") / "plans" / "reproduce.yaml"))
+
+
+def load_plan(path: Path | None = None) -> ReproducePlan:
+    """Read and type-check a plan YAML file; structural mistakes fail with the file and field."""
+    path = Path(path) if path is not None else default_plan_path()
+    data = read_yaml(path)
+    plan: ReproducePlan = dataclass_from_dict(ReproducePlan, data, where=str(path))
+    if plan.version != PLAN_VERSION:
+        raise ClodsError(f"plan version {plan.version} is not supported (expected {PLAN_VERSION})", where=f"{path}: version")
+    ids = [t.id for t in plan.tables]
+    dupes = sorted({i for i in ids if ids.count(i) > 1})
+    if dupes:
+        raise ClodsError(f"table ids listed twice: {', '.join(dupes)}", where=f"{path}: tables")
+    if not plan.runs:
+        raise ClodsError("the plan has no runs", where=f"{path}: runs")
+    return plan
+
+
+def plan_digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+
+
+def run_name(run: PlanRun) -> str:
+    """A stable id of a plan row: '<table>/<label>'."""
+    return f"{run.table}/{run.label}"
+
+
+def config_identity(cfg: RunConfig) -> str:
+    """What decides a run's numbers: the resolved config without its label and progress flag."""
+    d = cfg.to_dict()
+    d.pop("label")
+    d.pop("progress")
+    return json.dumps(d, sort_keys=True, default=str)
+
+
+def build_configs(
+    plan: ReproducePlan, preset: str, registry: Any, extra_overrides: Sequence[str] = (), config_file: Path | None = None
+) -> list[tuple[PlanRun, RunConfig]]:
+    """Resolve every run's config and check it against the registry; raise one ClodsError listing every problem."""
+    from clods_bench.benchmark.runner import check_plugins
+
+    problems: list[str] = []
+    tables = {t.id: t for t in plan.tables}
+    labels: dict[str, set[str]] = {}
+    out: list[tuple[PlanRun, RunConfig]] = []
+    for i, run in enumerate(plan.runs):
+        where = f"runs[{i}] ({run_name(run)})"
+        table = tables.get(run.table)
+        if table is None:
+            problems.append(f"{where}: unknown table '{run.table}' (tables: {', '.join(tables) or 'none'})")
+            continue
+        if table.task != run.task:
+            problems.append(f"{where}: task '{run.task}' but table '{run.table}' holds '{table.task}' rows")
+        if run.label in labels.setdefault(run.table, set()):
+            problems.append(f"{where}: label '{run.label}' appears twice in table '{run.table}'")
+        labels[run.table].add(run.label)
+        if run.task not in registry.names("task"):
+            problems.append(f"{where}: task '{run.task}' is not registered (registered: {', '.join(registry.names('task'))})")
+            continue
+        fields: dict[str, Any] = {"task": run.task, "sim": run.sim, "renderer": run.renderer, "label": run.label, "train_subset": run.train_subset}
+        if run.predictor is not None:
+            fields["predictor"] = run.predictor  # a config without this field fails below, naming it
+        if plan.seeds is not None:
+            fields["seeds"] = plan.seeds
+        try:
+            cfg = load_config(preset, config_file, [*plan.overrides, *table.overrides, *run.overrides, *extra_overrides], **fields)
+            check_plugins(cfg, registry)
+        except ClodsError as exc:
+            problems.append(f"{where}: {exc.message}")
+            continue
+        if len(cfg.seeds) < 2:
+            problems.append(f"{where}: {len(cfg.seeds)} seed(s); reproduce needs at least 2 (seed-to-seed std)")
+        out.append((run, cfg))
+    empty = [t.id for t in plan.tables if not any(r.table == t.id for r in plan.runs)]
+    if empty:
+        problems.append(f"tables without runs: {', '.join(empty)}")
+    if problems:
+        raise ClodsError("the reproduce plan cannot run:\n  " + "\n  ".join(problems), hint="enable only runs whose task and plugins are installed (`clods-bench list`)")
+    return out
+
+
+# ---------------------------------------------------------------- tables
+
+
+def generic_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Any task's records as a table: one 'mean ± std' column per metric, timing means as 'time/<key>' columns."""
+    from clods_bench.benchmark.tables import fmt_cell
+
+    metric_keys = sorted({k for r in records for k in r["metrics"]})
+    timing_keys = sorted({k for r in records for k in r["timings"] if not k.startswith("fit/")})
+    display_rows, numeric_rows, index = [], [], []
+    for rec in records:
+        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
+        for key in metric_keys:
+            v = rec["metrics"].get(key) or {}
+            mean = float("nan") if v.get("mean") is None else float(v["mean"])
+            std = float("nan") if v.get("std") is None else float(v["std"])
+            row[key] = fmt_cell(mean, std)
+            num[f"{key}/mean"], num[f"{key}/std"] = mean, std
+        for key in timing_keys:
+            v = (rec["timings"].get(key) or {}).get("mean")
+            value = float("nan") if v is None else float(v)
+            row[f"time: {key}"] = f"{value:.3g}"
+            num[f"time/{key}"] = value
+        display_rows.append(row)
+        numeric_rows.append(num)
+        index.append(rec["label"])
+    return pd.DataFrame(display_rows, index=pd.Index(index, name="Method")), pd.DataFrame(numeric_rows)
+
+
+def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+    """(display, numeric, footnote) in the layout of `task`; tasks without a dedicated layout get `generic_frame`."""
+    from clods_bench.benchmark import tables
+
+    if task == "cdg":
+        display, numeric = tables.cdg_frame(records)
+        return display, numeric, ""
+    if task == "nvs":
+        display, numeric, notes = tables.nvs_frame(records)
+        return display, numeric, "; ".join(notes)
+    if task == "stability":
+        display, numeric = tables.stability_frame(records)
+        return display, numeric, ""
+    if task == "dvc" and hasattr(tables, "dvc_frame"):
+        display, numeric, notes = tables.dvc_frame(records)
+        return display, numeric, "; ".join(notes)
+    display, numeric = generic_frame(records)
+    return display, numeric, ""
+
+
+def write_plan_table(table: PlanTable, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
+    """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table, rows in plan order."""
+    from clods_bench.benchmark.tables import to_markdown
+
+    display, numeric, note = table_frames(table.task, records)
+    seeds = "/".join(str(n) for n in sorted({len(r["seeds"]) for r in records}))
+    scenes = ", ".join(sorted({r["scene"] for r in records}))
+    caption = f"{table.title} ({scenes}, preset {preset}; mean ± std over {seeds} seeds)" + (f". {note}" if note else "")
+    stem = Path(out_dir) / table.id
+    markdown = to_markdown(display) if isinstance(display.columns, pd.MultiIndex) else display.to_markdown()
+    write_text(stem.with_suffix(".md"), f"{caption}\n\n{markdown}\n")
+    write_text(stem.with_suffix(".tex"), display.to_latex(caption=caption, multicolumn_format="c"))
+    write_text(stem.with_suffix(".csv"), numeric.to_csv(index=False))
+    return [stem.with_suffix(s) for s in (".md", ".tex", ".csv")]
+
+
+# ---------------------------------------------------------------- the command
+
+
+def _shown(path: str | Path) -> str:
+    """`path` relative to the working directory when it lies below it (manifests get committed), else absolute."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(p)
+
+
+def reproduce(
+    preset: str,
+    out_dir: Path,
+    registry: Any,
+    console: Console,
+    executor_name: str = "local",
+    plan_path: Path | None = None,
+    overrides: Sequence[str] = (),
+    only: Sequence[str] = (),
+    ray_address: str | None = None,
+) -> dict[str, Any]:
+    """Run every run of the plan (resuming finished seeds), write every table and `manifest.json`; return the manifest."""
+    from clods_bench.benchmark.executors import make_executor, run_configs
+
+    t_start = time.perf_counter()
+    plan_file = Path(plan_path) if plan_path is not None else default_plan_path()
+    plan = load_plan(plan_file)
+    if only:
+        unknown = sorted(set(only) - {t.id for t in plan.tables})
+        if unknown:
+            raise ClodsError(f"unknown table id(s): {', '.join(unknown)}", where="--only", hint=f"one of {', '.join(t.id for t in plan.tables)}")
+        plan.tables = [t for t in plan.tables if t.id in only]
+        plan.runs = [r for r in plan.runs if r.table in only]
+    runs = build_configs(plan, preset, registry, overrides)
+    executor = make_executor(executor_name, ray_address)
+    # Rows whose configs differ only in their label (e.g. the default SMGS in several tables) run once.
+    canonical: dict[str, tuple[str, RunConfig]] = {}
+    same_as = {}
+    for run, cfg in runs:
+        first = canonical.setdefault(config_identity(cfg), (run_name(run), cfg))
+        same_as[run_name(run)] = first[0]
+    summaries = {s["name"]: s for s in run_configs(list(canonical.values()), executor, registry, console)}
+
+    out_dir = Path(out_dir)
+    records: dict[str, dict[str, Any]] = {}
+    manifest_runs = []
+    for run, cfg in runs:
+        summary = summaries[same_as[run_name(run)]]
+        rec = json.loads((Path(summary["record_dir"]) / RECORD_FILE).read_text())
+        rec["label"] = run.label
+        records[run_name(run)] = rec
+        seed_seconds = [s["timings"].get("seed_seconds") for s in rec["per_seed"].values()]
+        manifest_runs.append(
+            {
+                "table": run.table,
+                "label": run.label,
+                "task": run.task,
+                "sim": cfg.sim,
+                "renderer": cfg.renderer,
+                "seeds": rec["seeds"],
+                "record_dir": _shown(summary["record_dir"]),
+                "same_as": None if same_as[run_name(run)] == run_name(run) else same_as[run_name(run)],
+                "wall_seconds": summary["wall_seconds"] if same_as[run_name(run)] == run_name(run) else 0.0,
+                "seeds_run": summary["seeds_run"] if same_as[run_name(run)] == run_name(run) else [],
+                "compute_seconds": float(sum(s for s in seed_seconds if s is not None and math.isfinite(s))),
+                "data_seconds": rec.get("run_timings", {}).get("data_seconds"),
+            }
+        )
+    written: list[str] = []
+    for table in plan.tables:
+        recs = [records[run_name(r)] for r in plan.runs if r.table == table.id]
+        written += [p.name for p in write_plan_table(table, recs, out_dir, preset)]
+        console.print(f"[bold]{table.id}[/bold]: {len(recs)} row(s)")
+    manifest = {
+        "preset": preset,
+        "plan": _shown(plan_file),
+        "plan_sha256": plan_digest(plan_file),
+        "overrides": list(overrides),
+        "executor": executor_name,
+        "commit": git_commit(),
+        "versions": package_versions(),
+        "tables": [t.id for t in plan.tables],
+        "files": sorted(written),
+        "runs": manifest_runs,
+        "wall_seconds_total": time.perf_counter() - t_start,
+        "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }
+    write_json(out_dir / MANIFEST_FILE, manifest)
+    return manifest

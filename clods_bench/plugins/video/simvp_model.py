@@ -1,0 +1,102 @@
+"""The SimVP network (Gao et al. 2022, "SimVP: Simpler yet Better Video Prediction"): a per-frame CNN
+encoder, a translator of Inception blocks over the time-stacked latents, a per-frame CNN decoder.
+
+Layout as in SimVP v1: encoder ConvSC layers with strides 1,2,1,2,...; the translator sees
+(B, T*hid_s, h, w) (time stacked into channels) and is a U-Net of Inception blocks (1x1 conv,
+then grouped convolutions of several kernel sizes, summed); the decoder mirrors the encoder
+with transposed convolutions and takes the first encoder layer as a skip; a 1x1 readout.
+T_out = T_in frames are predicted at once.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class ConvSC(nn.Module):
+    """3x3 convolution (transposed when upsampling) + GroupNorm(2) + LeakyReLU(0.2)."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int, transpose: bool = False) -> None:
+        super().__init__()
+        if transpose and stride == 2:
+            self.conv: nn.Module = nn.ConvTranspose2d(c_in, c_out, 3, stride=2, padding=1, output_padding=1)
+        else:
+            self.conv = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1)
+        self.norm = nn.GroupNorm(2, c_out)
+        self.act = nn.LeakyReLU(0.2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.act(self.norm(self.conv(x)))
+
+
+def strides(num_layers: int) -> list[int]:
+    """SimVP's encoder strides: 1, 2, 1, 2, ... (one halving per pair of layers)."""
+    return [2 if i % 2 == 1 else 1 for i in range(num_layers)]
+
+
+class Inception(nn.Module):
+    """1x1 convolution to `c_hid`, then the sum of grouped convolutions with the given kernel sizes."""
+
+    def __init__(self, c_in: int, c_hid: int, c_out: int, kernels: tuple[int, ...], groups: int) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_hid, 1)
+        g = groups if c_hid % groups == 0 and c_out % groups == 0 else 1
+        self.branches = nn.ModuleList(
+            nn.Sequential(nn.Conv2d(c_hid, c_out, k, padding=k // 2, groups=g), nn.GroupNorm(g, c_out), nn.LeakyReLU(0.2)) for k in kernels
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.conv1(x)
+        return sum(b(h) for b in self.branches)  # type: ignore[return-value]
+
+
+class Translator(nn.Module):
+    """U-Net of `num_layers` Inception blocks over (B, T*C, h, w); decoder blocks add the mirrored encoder outputs."""
+
+    def __init__(self, channels: int, hidden: int, num_layers: int, kernels: tuple[int, ...], groups: int) -> None:
+        super().__init__()
+        half = max(1, hidden // 2)
+        self.enc = nn.ModuleList([Inception(channels, half, hidden, kernels, groups)])
+        self.enc.extend(Inception(hidden, half, hidden, kernels, groups) for _ in range(num_layers - 1))
+        self.dec = nn.ModuleList(Inception(2 * hidden, half, hidden, kernels, groups) for _ in range(num_layers - 1))
+        self.dec.append(Inception(2 * hidden, half, channels, kernels, groups))
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for layer in self.enc:
+            z = layer(z)
+            skips.append(z)
+        for layer, skip in zip(self.dec, reversed(skips)):
+            z = layer(torch.cat([z, skip], dim=1))
+        return z
+
+
+class SimVP(nn.Module):
+    """(B,T,3,H,W) frames in [0,1] -> (B,T,3,H,W): the next T frames."""
+
+    def __init__(self, frames: int, hid_s: int, hid_t: int, enc_layers: int, trans_layers: int, kernels: tuple[int, ...], groups: int) -> None:
+        super().__init__()
+        self.frames = frames
+        st = strides(enc_layers)
+        self.enc = nn.ModuleList(ConvSC(3 if i == 0 else hid_s, hid_s, s) for i, s in enumerate(st))
+        self.translator = Translator(frames * hid_s, hid_t, trans_layers, kernels, groups)
+        rev = list(reversed(st))
+        self.dec = nn.ModuleList(ConvSC(hid_s, hid_s, s, transpose=True) for s in rev[:-1])
+        self.dec.append(ConvSC(2 * hid_s, hid_s, rev[-1], transpose=True))
+        self.readout = nn.Conv2d(hid_s, 3, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, t, c, h, w = x.shape
+        z = x.reshape(b * t, c, h, w)
+        skip = None
+        for i, layer in enumerate(self.enc):
+            z = layer(z)
+            if i == 0:
+                skip = z
+        _, cz, hz, wz = z.shape
+        z = self.translator(z.reshape(b, t * cz, hz, wz)).reshape(b * t, cz, hz, wz)
+        for layer in self.dec[:-1]:
+            z = layer(z)
+        z = self.dec[-1](torch.cat([z, skip], dim=1))
+        return self.readout(z).reshape(b, t, c, h, w)

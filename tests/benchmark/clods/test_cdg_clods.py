@@ -1,0 +1,120 @@
+"""`run cdg --sim ... --renderer ...` end to end on the tiny dataset: the CloDS branch of the CDG task."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clods_bench.benchmark.clods.config import clods_config
+from clods_bench.benchmark.clods.labels import clods_label
+from clods_bench.benchmark.records import RECORD_FILE, default_label
+from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.runner import run_task
+from clods_bench.errors import ClodsError
+from tests.conftest import tiny_config
+
+FAST = [
+    "renderer_config.games.iterations=10",
+    "renderer_config.games.gaussians_per_face=1",
+    "task_config.clods.iterations=2",
+    "task_config.clods.min_iterations=2",
+]
+
+
+def _record(rdir: Path) -> dict:
+    return json.loads((rdir / RECORD_FILE).read_text())
+
+
+def test_constvel_from_video_matches_mesh_supervised_rollouts(tiny_root: Path, tmp_path: Path):
+    """constvel ignores its training data, so the video-trained row must score exactly like the mesh one,
+    while stages 1-2 ran: E-GT recorded per frame (0 at the ground-truth initial mesh), meshes cached per trajectory."""
+    runs = tmp_path / "runs"
+    video = run_task(tiny_config(tiny_root, f"runs_dir={runs}", *FAST, sim="constvel", renderer="games"), default_registry())
+    mesh = run_task(tiny_config(tiny_root, f"runs_dir={runs}", sim="constvel"), default_registry())
+    rv, rm = _record(video), _record(mesh)
+    assert rv["label"] == "CloDS**[constvel+games]" and rm["label"] == "constvel"
+    for key, value in rm["metrics"].items():
+        assert rv["metrics"][key]["mean"] == pytest.approx(value["mean"], rel=1e-6), key
+    seed = rv["per_seed"]["0"]
+    assert seed["extra"]["train_ids"] == [0, 1]
+    egt = np.asarray(seed["extra"]["egt_curve"])
+    assert egt.shape == (9,) and egt[0] == 0.0 and np.all(egt[1:] > 0)  # frames 0..interp_steps
+    t = seed["timings"]
+    assert t["fit/stage2_frames"] == 16 and t["fit/stage2_ms_per_frame"] > 0 and t["fit/egt_rmse"] == pytest.approx(egt[1:].mean())
+    cached = sorted(p.name for p in (runs / "clods_cache").glob("*/traj_*.npz"))
+    assert cached == ["traj_0000.npz", "traj_0001.npz"]
+
+
+def test_labels_and_variants(tiny_root: Path):
+    cfg = tiny_config(tiny_root, sim="mgn", renderer="smgs")
+    assert default_label(cfg) == "CloDS**"
+    assert clods_label(tiny_config(tiny_root, sim="mgn", renderer="smgs", train_subset="first_half")) == "CloDS*"
+    fine = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="mgn", renderer="smgs")
+    assert default_label(fine) == "CloDS" and clods_config(fine).variant == "finetune"
+    with pytest.raises(ClodsError, match="task_config.clods"):
+        clods_config(tiny_config(tiny_root, "task_config.clods.gama=0.1"))
+    with pytest.raises(ClodsError, match="num_cameras"):
+        clods_config(tiny_config(tiny_root, "task_config.clods.num_cameras=0"))
+
+
+@pytest.mark.slow
+def test_finetune_starts_from_the_mesh_pretrained_model(tiny_root: Path, tmp_path: Path):
+    """CloDS: MGN* on the first half's meshes, then fine-tuned on the second half's extracted meshes."""
+    tiny_mgn = ["sim_config.mgn.latent_size=8", "sim_config.mgn.message_passing_steps=1", "sim_config.mgn.train_steps=4",
+                "sim_config.mgn.warmup_steps=1", "task_config.clods.sim_overrides.train_steps=3", "task_config.clods.sim_overrides.warmup_steps=1",
+                "task_config.clods.sim_overrides.rollout_length=2"]  # fmt: skip
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", *FAST, *tiny_mgn, "task_config.clods.variant=finetune", sim="mgn", renderer="games")
+    rec = _record(run_task(cfg, default_registry()))
+    seed = rec["per_seed"]["0"]
+    assert rec["label"] == "CloDS[mgn+games]" and seed["extra"]["train_ids"] == [1]  # videos of the second half
+    t = seed["timings"]
+    assert t["fit/pretrain/train_steps"] == 4 and t["fit/stage3/train_steps"] == 3
+    assert np.isfinite(rec["metrics"]["unviewed/interp/avg"]["mean"])
+
+
+def test_warm_start_hands_over_a_copy_of_the_trained_model():
+    import torch
+
+    from clods_bench.benchmark.clods.stage3 import warm_start
+
+    class Learned:
+        def __init__(self) -> None:
+            self.model = None
+
+        def build_model(self, seed: int) -> torch.nn.Module:
+            return torch.nn.Linear(2, 2)
+
+    pre, sim = Learned(), Learned()
+    pre.model = torch.nn.Linear(2, 2).eval()
+    warm_start(sim, pre, "fake")
+    built = sim.build_model(0)
+    assert built is not pre.model and built.training
+    assert all(torch.equal(a, b) for a, b in zip(built.parameters(), pre.model.parameters()))
+    with pytest.raises(ClodsError, match="cannot fine-tune"):
+        warm_start(object(), object(), "constvel")
+
+
+def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp_path: Path):
+    import torch
+
+    from clods_bench.benchmark.clods.pipeline import fit_stage1
+    from clods_bench.benchmark.descriptors import TaskContext
+    from clods_bench.datasets.store import DatasetStore
+
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", *FAST, sim="constvel", renderer="games")
+    ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path / "w", registry=default_registry())
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    trajs = [store.load_trajectory(i) for i in (0, 1)]
+    images = np.stack([store.load_frames(i)[0, :2] for i in (0, 1)])
+    cams = store.cameras()[:2]
+    first, s1 = fit_stage1(ctx, trajs, images, cams)
+    second, s2 = fit_stage1(ctx, trajs, images, cams)
+    assert s1["stage1_cached"] == 0.0 and s1["stage1_seconds"] > 0 and s2["stage1_cached"] == 1.0
+    v = torch.from_numpy(trajs[0].world_pos[3])
+    with torch.no_grad():
+        torch.testing.assert_close(first.render(v, cams), second.render(v, cams), rtol=0, atol=0)
+    _, s3 = fit_stage1(ctx, trajs, images, cams, initial_meshes=np.stack([t.world_pos[0] + 0.01 for t in trajs]))
+    assert s3["stage1_cached"] == 0.0  # other initial meshes: another representation

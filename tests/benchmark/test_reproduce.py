@@ -1,0 +1,167 @@
+"""`reproduce`: a plan (YAML) runs into tables + manifest; bad plans fail before any work; reruns are identical."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from rich.console import Console
+
+from clods_bench.benchmark.cli import main
+from clods_bench.benchmark.executors import ensure_complete_dataset
+from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.reproduce import build_configs, default_plan_path, load_plan, reproduce
+from clods_bench.benchmark.runner import run_task
+from clods_bench.errors import ClodsError
+from tests.conftest import TINY, tiny_config
+
+PLAN = textwrap.dedent(
+    """\
+    version: 1
+    description: tiny test plan
+    tables:
+      - {id: t_cdg, task: cdg, title: "CDG baselines"}
+      - {id: t_damp, task: cdg, title: "the same baseline under two labels"}
+    runs:
+      - {table: t_cdg, task: cdg, label: Const. velocity, sim: constvel}
+      - {table: t_cdg, task: cdg, label: Frozen, sim: frozen}
+      - {table: t_damp, task: cdg, label: frozen again, sim: frozen}
+    """
+)
+
+
+def _overrides(root: Path, runs: Path) -> list[str]:
+    return [*TINY, f"data.root={root / 'data'}", f"runs_dir={runs}", "seeds=[0, 1]"]
+
+
+def _plan(tmp_path: Path, text: str = PLAN) -> Path:
+    path = tmp_path / "plan.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_builtin_plan_loads_and_every_enabled_run_is_installed() -> None:
+    plan = load_plan(default_plan_path())
+    runs = build_configs(plan, "ci", default_registry())
+    tables = {t.id for t in plan.tables}
+    assert {"table2_cdg", "table3_nvs", "stability"} <= tables
+    assert len(runs) == len(plan.runs) and all(len(cfg.seeds) >= 2 for _, cfg in runs)
+
+
+def test_reproduce_writes_tables_and_manifest_matching_the_records(tmp_path: Path, tiny_root: Path) -> None:
+    out = tmp_path / "results"
+    manifest = reproduce("ci", out, default_registry(), Console(quiet=True), plan_path=_plan(tmp_path), overrides=_overrides(tiny_root, tmp_path / "runs"))
+    for stem in ("t_cdg", "t_damp"):
+        for suffix in (".md", ".tex", ".csv"):
+            assert (out / f"{stem}{suffix}").is_file()
+    on_disk = json.loads((out / "manifest.json").read_text())
+    assert on_disk["tables"] == ["t_cdg", "t_damp"] and "numpy" in on_disk["versions"] and "commit" in on_disk
+    assert on_disk["wall_seconds_total"] > 0 and len(on_disk["runs"]) == 3
+    # the duplicate row ran once and points at its twin
+    dup = next(r for r in manifest["runs"] if r["label"] == "frozen again")
+    assert dup["same_as"] == "t_cdg/Frozen" and dup["seeds_run"] == []
+    first = next(r for r in manifest["runs"] if r["label"] == "Frozen")
+    assert first["seeds_run"] == [0, 1] and first["wall_seconds"] > 0
+
+    csv = pd.read_csv(out / "t_cdg.csv").set_index("method")
+    for run in manifest["runs"][:2]:
+        rec = json.loads((Path(run["record_dir"]) / RECORD_FILE).read_text())
+        assert rec["seeds"] == [0, 1]
+        for key in ("viewed/interp/d_avg", "unviewed/extrap/d_end"):
+            assert csv.loc[run["label"], f"{key}/mean"] == pytest.approx(rec["metrics"][key]["mean"], rel=1e-12)
+            per_seed = [rec["per_seed"][s]["metrics"][key] for s in ("0", "1")]
+            assert rec["metrics"][key]["mean"] == pytest.approx(np.mean(per_seed), rel=1e-12)
+    damp = pd.read_csv(out / "t_damp.csv").set_index("method")
+    assert damp.loc["frozen again", "unviewed/extrap/d_avg/mean"] == csv.loc["Frozen", "unviewed/extrap/d_avg/mean"]
+    assert "Const. velocity" in (out / "t_cdg.md").read_text()
+
+    # resumable: a second call reruns no seed and writes the same CSVs
+    before = (out / "t_cdg.csv").read_text()
+    again = reproduce("ci", out, default_registry(), Console(quiet=True), plan_path=_plan(tmp_path), overrides=_overrides(tiny_root, tmp_path / "runs"))
+    assert all(r["seeds_run"] == [] for r in again["runs"])
+    assert (out / "t_cdg.csv").read_text() == before
+
+
+def test_unregistered_plugins_and_tasks_fail_listing_every_problem(tmp_path: Path, tiny_root: Path) -> None:
+    bad = PLAN + (
+        "  - {table: t_cdg, task: cdg, label: typo, sim: constvl}\n"
+        "  - {table: t_cdg, task: nosuchtask, label: nope, sim: constvel}\n"
+        "  - {table: t_missing, task: cdg, label: orphan, sim: frozen}\n"
+        '  - {table: t_cdg, task: cdg, label: Frozen, sim: frozen, overrides: ["data.num_trian=3"]}\n'
+    )
+    runs = tmp_path / "runs"
+    with pytest.raises(ClodsError) as err:
+        reproduce("ci", tmp_path / "out", default_registry(), Console(quiet=True), plan_path=_plan(tmp_path, bad), overrides=_overrides(tiny_root, runs))
+    msg = err.value.message
+    assert "unknown simulator 'constvl'" in msg and "did you mean 'constvel'" in msg
+    assert "task 'nosuchtask' but table 't_cdg' holds 'cdg' rows" in msg and "task 'nosuchtask' is not registered" in msg
+    assert "unknown table 't_missing'" in msg
+    assert "label 'Frozen' appears twice" in msg and "data.num_trian" in msg
+    assert not runs.exists() and not (tmp_path / "out").exists()  # nothing ran
+
+
+def test_one_seed_is_refused(tmp_path: Path, tiny_root: Path) -> None:
+    with pytest.raises(ClodsError, match="reproduce needs at least 2"):
+        build_configs(load_plan(_plan(tmp_path)), "ci", default_registry(), [*_overrides(tiny_root, tmp_path), "seeds=[3]"])
+
+
+def test_cli_reproduce_check_passes_then_fails_when_a_committed_number_differs(tmp_path: Path, tiny_root: Path) -> None:
+    plan = _plan(tmp_path)
+    sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]
+    committed = tmp_path / "committed"
+    assert main(["reproduce", "--plan", str(plan), "--out", str(committed), *sets]) == 0
+    (committed / "tolerance.yaml").write_text("default: {rel: 1.0e-6, abs: 1.0e-9}\nexclude: ['*_ms_per_*', '*seconds*']\n")
+    fresh = tmp_path / "fresh"
+    assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--check", str(committed), *sets]) == 0
+    table = pd.read_csv(committed / "t_cdg.csv")
+    table.loc[0, "viewed/interp/d_avg/mean"] *= 1.01
+    table.to_csv(committed / "t_cdg.csv", index=False)
+    assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--check", str(committed), *sets]) == 1
+    assert main(["reproduce", "--plan", str(plan), "--out", str(committed), "--check", str(committed), *sets]) == 2  # would compare with itself
+
+
+def test_same_learned_config_twice_gives_identical_metrics(tmp_path: Path, tiny_root: Path) -> None:
+    """The runner seeds every RNG: two fresh runs of a trained MGN (separate record dirs) agree bit for bit."""
+    extra = ["sim_config.mgn.train_steps=15", "sim_config.mgn.latent_size=16", "sim_config.mgn.message_passing_steps=2", "sim_config.mgn.warmup_steps=2"]
+    recs = []
+    for name in ("a", "b"):
+        cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / name}", *extra, sim="mgn")
+        recs.append(json.loads((run_task(cfg, default_registry(), ensure_data=ensure_complete_dataset) / RECORD_FILE).read_text()))
+    assert recs[0]["per_seed"]["0"]["metrics"] == recs[1]["per_seed"]["0"]["metrics"]
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / 'c'}", *extra, "seeds=[1]", sim="mgn")
+    other = json.loads((run_task(cfg, default_registry(), ensure_data=ensure_complete_dataset) / RECORD_FILE).read_text())
+    assert other["per_seed"]["1"]["metrics"] != recs[0]["per_seed"]["0"]["metrics"]  # the seed does matter
+
+
+def test_tasks_without_a_layout_get_one_column_per_metric() -> None:
+    from clods_bench.benchmark.reproduce import table_frames
+
+    recs = [
+        {"label": "copy", "seeds": [0, 1], "metrics": {"psnr": {"mean": 20.0, "std": 0.5}}, "timings": {"fit_seconds": {"mean": 2.0, "std": 0.0}, "fit/loss": {"mean": 1.0}}},
+        {"label": "simvp", "seeds": [0, 1], "metrics": {"psnr": {"mean": 25.0, "std": None}, "ssim": {"mean": 0.9, "std": 0.01}}, "timings": {}},
+    ]
+    display, numeric, note = table_frames("some-new-task", recs)
+    assert list(display.index) == ["copy", "simvp"] and note == ""
+    assert display.loc["copy", "psnr"] == "20.0000 ± 0.5000" and display.loc["copy", "ssim"] == "n/a"
+    row = numeric.set_index("method").loc["simvp"]
+    assert row["psnr/mean"] == 25.0 and np.isnan(row["psnr/std"]) and row["ssim/mean"] == 0.9 and np.isnan(row["time/fit_seconds"])
+    assert "time/fit/loss" not in numeric.columns
+
+
+def test_override_order_plan_then_table_then_run_then_command_line(tmp_path: Path) -> None:
+    text = (
+        "version: 1\noverrides: [data.num_test=5, data.num_train=6]\n"
+        "tables:\n  - {id: t, task: cdg, title: T, overrides: [data.num_test=4, data.interp_steps=20]}\n"
+        "runs:\n  - {table: t, task: cdg, label: a, sim: frozen, overrides: [data.num_test=3]}\n"
+        "  - {table: t, task: cdg, label: b, sim: frozen}\n"
+    )
+    runs = build_configs(load_plan(_plan(tmp_path, text)), "ci", default_registry(), ["data.interp_steps=25"])
+    (_, a), (_, b) = runs
+    assert (a.data.num_train, a.data.num_test, a.data.interp_steps) == (6, 3, 25)
+    assert (b.data.num_train, b.data.num_test, b.data.interp_steps) == (6, 4, 25)
+    assert a.label == "a" and a.seeds == [0, 1]  # the ci preset's seeds
