@@ -22,6 +22,10 @@ import yaml
 from clods_bench.errors import ClodsError, closest, unknown_name
 
 CONFIG_VERSION = 1
+DATA_GENERATOR_VERSION = 2
+"""Bumped whenever the built-in data generation changes what a DataConfig produces (scenes, solver,
+renderer): it is part of the dataset identity, so an old dataset is never mistaken for a new one.
+2: one mean wind for all flag trajectories, no wind ramp, 1 s warm-up before frame 0."""
 
 
 @dataclass
@@ -62,9 +66,10 @@ class DataConfig:
     """Directory under which datasets are stored (not part of the dataset identity)."""
 
     def identity(self) -> dict[str, Any]:
-        """The fields that decide what data is generated (everything but `root`)."""
+        """The fields that decide what data is generated (everything but `root`), and the generator version."""
         d = dataclasses.asdict(self)
         d.pop("root")
+        d["generator_version"] = DATA_GENERATOR_VERSION
         return d
 
     def dataset_dir(self) -> Path:

@@ -6,6 +6,9 @@ the manifest, so an interrupted generation resumes at the first unlisted traject
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -68,6 +71,13 @@ def render_trajectory(
     return frames
 
 
+def scene_fingerprint(scene: SceneSpec) -> str:
+    """Hash of everything a scene defines (physics, ranges, warm-up): a dataset made from an edited scene
+    definition is reported as made with a different config instead of being reused."""
+    fields = dataclasses.asdict(scene) if dataclasses.is_dataclass(scene) else repr(scene)
+    return hashlib.sha256(json.dumps(fields, sort_keys=True, default=repr).encode()).hexdigest()[:16]
+
+
 def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool = False) -> DatasetStore:
     """Generate (or finish generating) the dataset described by `d` in `d.dataset_dir()`."""
     for name in ("num_train", "num_test"):
@@ -85,7 +95,7 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
         import shutil
 
         shutil.rmtree(root)
-    store = DatasetStore.create(root, d.scene, d.identity(), cameras)
+    store = DatasetStore.create(root, d.scene, {**d.identity(), "scene_spec": scene_fingerprint(scene)}, cameras)
     texture = make_texture(d)
     if d.render_frames and not (root / TEXTURE_FILE).exists():
         save_texture(root / TEXTURE_FILE, texture)
