@@ -60,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-subset", choices=("all", "first_half"), help="training trajectories: all (MGN) or first half (MGN*)")
     p.add_argument("--seeds", type=int, nargs="+", help="seeds (default from the preset)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the seeds here (default) or as Ray tasks")
+    p.add_argument("--jobs", type=int, default=1, help="local executor: seeds run in this many worker processes (default 1)")
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
@@ -67,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("tables"))
-    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, or all (every task with records; default)")
+    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, extract, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
     p = sub.add_parser("report", help="HTML report (report/index.html): every table, error-vs-time and rollout plots, NVS grids, DVC media")
@@ -81,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plan", type=Path, help="plan YAML (default: the built-in clods_bench/benchmark/plans/reproduce.yaml)")
     p.add_argument("--out", type=Path, help="folder of the tables and manifest (default: results/<preset>)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the (run, seed) jobs here (default) or as Ray tasks")
+    p.add_argument("--jobs", type=int, default=1, help="local executor: (run, seed) jobs run in this many worker processes (default 1)")
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     p.add_argument("--only", nargs="+", default=[], metavar="TABLE", help="only these table ids of the plan")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override applied to every run")
@@ -182,12 +184,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.runner import run_task
 
     cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
-    if args.executor == "local":
+    if args.executor == "local" and args.jobs == 1:
         rdir = run_task(cfg, _registry(), err_console)
     else:
         from clods_bench.benchmark.executors import make_executor, run_configs
 
-        summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address), _registry(), err_console)
+        summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address, args.jobs), _registry(), err_console)
         rdir = Path(summary[0]["record_dir"])
     import json
 
@@ -224,7 +226,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.tables import write_tables
 
     if args.task == "all":
-        tasks = [t for t in ("cdg", "nvs", "stability", "dvc") if any(True for _ in iter_records(args.runs, t))]
+        tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "extract") if any(True for _ in iter_records(args.runs, t))]
         if not tasks:
             raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     else:
@@ -266,7 +268,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run.overrides))
         console.print(table)
         return 0
-    manifest = reproduce(args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address)
+    manifest = reproduce(args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs)
     console.print(f"wrote {len(manifest['files'])} table files and manifest.json to {out} in {manifest['wall_seconds_total']:.1f} s")
     if args.check is not None:
         return _report_comparison(args.check, out, None)

@@ -9,7 +9,10 @@ Paths in the configs are made absolute before dispatch: Ray workers may start in
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Literal, Sequence
@@ -20,6 +23,7 @@ from rich.progress import Progress
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
 from clods_bench.benchmark.records import load_seed_result, record_dir
 from clods_bench.errors import ClodsError
+from clods_bench.threads import MAX_THREADS_ENV
 
 ExecutorName = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
@@ -62,21 +66,57 @@ def run_seed_job(job: SeedJob) -> dict[str, Any]:
     return {"name": job.name, "seed": int(job.seed), "record_dir": str(rdir), "wall_seconds": time.perf_counter() - t0}
 
 
+def _init_worker(threads: int) -> None:
+    """Start of a parallel worker process: cap every torch thread setting at `threads` (see `clods_bench.threads`)."""
+    os.environ[MAX_THREADS_ENV] = str(threads)
+    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+    import torch
+
+    torch.set_num_threads(threads)
+
+
 class LocalExecutor:
-    """Runs jobs one after another in this process."""
+    """Runs jobs on this machine: one after another in this process (`jobs=1`), or in `jobs` worker processes.
+
+    With k > 1 workers on c cores each worker's torch threads are capped at max(1, c // k): the jobs
+    share the cores instead of oversubscribing them. Jobs that need the same cached result (a stage-1
+    fit, an extraction, a simulator fit) wait for each other through file locks, so nothing is computed twice.
+    """
 
     name = "local"
 
+    def __init__(self, jobs: int = 1) -> None:
+        if int(jobs) < 1:
+            raise ClodsError(f"must be >= 1, got {jobs}", where="--jobs")
+        self.jobs = int(jobs)
+
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any], describe: Callable[[Any], str] = str, progress: bool = True) -> list[Any]:
-        """`[fn(item) for item in items]`, with a progress bar."""
-        out = []
-        with Progress(disable=not progress) as bar:
-            task = bar.add_task("jobs (local)", total=len(items))
-            for item in items:
-                bar.update(task, description=f"job {describe(item)}")
-                out.append(fn(item))
-                bar.advance(task)
-        return out
+        """`[fn(item) for item in items]` (results in item order), with a progress bar."""
+        if self.jobs == 1 or len(items) <= 1:
+            out = []
+            with Progress(disable=not progress) as bar:
+                task = bar.add_task("jobs (local)", total=len(items))
+                for item in items:
+                    bar.update(task, description=f"job {describe(item)}")
+                    out.append(fn(item))
+                    bar.advance(task)
+            return out
+        threads = max(1, (os.cpu_count() or 1) // self.jobs)
+        results: list[Any] = [None] * len(items)
+        ctx = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no forked torch/numba state
+        with ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_init_worker, initargs=(threads,)) as pool:
+            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+            with Progress(disable=not progress) as bar:
+                task = bar.add_task(f"jobs (local, {self.jobs} processes x {threads} threads)", total=len(items))
+                try:
+                    for fut in as_completed(futures):
+                        results[futures[fut]] = fut.result()
+                        bar.advance(task)
+                except BaseException:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
+        return results
 
 
 class RayExecutor:
@@ -135,10 +175,10 @@ class RayExecutor:
                 ray.shutdown()
 
 
-def make_executor(name: str, address: str | None = None) -> LocalExecutor | RayExecutor:
-    """The executor called `name` ('local' or 'ray')."""
+def make_executor(name: str, address: str | None = None, jobs: int = 1) -> LocalExecutor | RayExecutor:
+    """The executor called `name` ('local', with `jobs` worker processes, or 'ray')."""
     if name == "local":
-        return LocalExecutor()
+        return LocalExecutor(jobs)
     if name == "ray":
         return RayExecutor(address=address)
     raise ClodsError(f"unknown executor '{name}'", where="--executor", hint=f"one of {', '.join(EXECUTORS)}")
@@ -175,13 +215,19 @@ def run_configs(
             console.print(f"[dim]dataset {ddir}[/dim]")
             ensure_complete_dataset(cfg, registry, cfg.progress)
 
+    # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
+    # runs together instead of two seeds of one run that would wait on each other's shared cached stages.
+    parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     jobs = []
-    for name, cfg in configs:
-        rdir = record_dir(cfg)
-        for seed in cfg.seeds:
-            if load_seed_result(rdir, seed) is None:
+    depth = max((len(cfg.seeds) for _, cfg in configs), default=0)
+    for k in range(depth):
+        for name, cfg in configs:
+            if k >= len(cfg.seeds):
+                continue
+            seed = cfg.seeds[k]
+            if load_seed_result(record_dir(cfg), seed) is None:
                 worker_cfg = cfg.to_dict()
-                worker_cfg["progress"] = False if executor.name == "ray" else cfg.progress
+                worker_cfg["progress"] = False if parallel else cfg.progress
                 jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))
     console.print(f"{len(jobs)} seed job(s) to run on the {executor.name} executor ({sum(len(c.seeds) for _, c in configs) - len(jobs)} finished earlier)")
     results = executor.map(run_seed_job, jobs, describe=lambda j: f"{j.name} seed {j.seed}", progress=any(c.progress for _, c in configs))

@@ -212,6 +212,9 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
     if task == "stability":
         display, numeric = tables.stability_frame(records)
         return display, numeric, ""
+    if task == "extract":
+        display, numeric, notes = tables.extract_frame(records)
+        return display, numeric, "; ".join(notes)
     if task == "dvc" and hasattr(tables, "dvc_frame"):
         display, numeric, notes = tables.dvc_frame(records)
         return display, numeric, "; ".join(notes)
@@ -257,6 +260,7 @@ def reproduce(
     overrides: Sequence[str] = (),
     only: Sequence[str] = (),
     ray_address: str | None = None,
+    jobs: int = 1,
 ) -> dict[str, Any]:
     """Run every run of the plan (resuming finished seeds), write every table and `manifest.json`; return the manifest."""
     from clods_bench.benchmark.executors import make_executor, run_configs
@@ -271,7 +275,7 @@ def reproduce(
         plan.tables = [t for t in plan.tables if t.id in only]
         plan.runs = [r for r in plan.runs if r.table in only]
     runs = build_configs(plan, preset, registry, overrides)
-    executor = make_executor(executor_name, ray_address)
+    executor = make_executor(executor_name, ray_address, jobs)
     # Rows whose configs differ only in their label (e.g. the default SMGS in several tables) run once.
     canonical: dict[str, tuple[str, RunConfig]] = {}
     same_as = {}
@@ -316,6 +320,7 @@ def reproduce(
         "plan_sha256": plan_digest(plan_file),
         "overrides": list(overrides),
         "executor": executor_name,
+        "jobs": int(jobs),
         "commit": git_commit(),
         "versions": package_versions(),
         "tables": [t.id for t in plan.tables],

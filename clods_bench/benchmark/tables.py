@@ -180,6 +180,41 @@ def dvc_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: l
     return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
 
 
+EXTRACT_COLUMNS = (  # (metric key, column): E-GT in metres (RMSE of extracted vs true mesh, frames after the first)
+    ("egt_avg", "E-GT avg (m) ↓"),
+    ("egt_first_half", "E-GT 1st half"),
+    ("egt_second_half", "E-GT 2nd half"),
+    ("egt_end", "E-GT last frame"),
+    ("edge_strain_max", "max edge strain"),
+)
+
+
+def extract_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame, numeric frame, notes) of mesh-extraction runs: E-GT per part of the video, stage-2 cost."""
+    display_rows, numeric_rows, index = [], [], []
+    for rec in records:
+        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
+        for key, name in EXTRACT_COLUMNS:
+            m = rec["metrics"].get(key) or {}
+            mean = float("nan") if m.get("mean") is None else float(m["mean"])
+            std = float("nan") if m.get("std") is None else float(m["std"])
+            row[("Extraction", name)] = fmt_cell(mean, std)
+            num[f"{key}/mean"], num[f"{key}/std"] = mean, std
+        t = rec["timings"]
+        per_frame = t.get("stage2_ms_per_frame", {}).get("mean", float("nan"))
+        fit = t.get("fit_seconds", {}).get("mean", float("nan"))
+        row[("Time", "stage 2 ms/frame")] = f"{per_frame:.3g}"
+        row[("Time", "stages 1-2 s")] = f"{fit:.3g}"
+        num["stage2_ms_per_frame"], num["fit_seconds"] = per_frame, fit
+        display_rows.append(row)
+        numeric_rows.append(num)
+        index.append(rec["label"])
+    display = pd.DataFrame(display_rows, index=pd.Index(index, name="Setting"))
+    display.columns = pd.MultiIndex.from_tuples(display.columns)
+    note = "E-GT: RMSE (m) of the mesh recovered from video against the true mesh, frames after the given first one"
+    return display, pd.DataFrame(numeric_rows), [note]
+
+
 def _divergence_cell(rec: dict[str, Any]) -> tuple[str, float, str]:
     """('stable' | 'frame k (n/N rollouts): reason', first failing frame or NaN, its reason) over every seed's rollouts."""
     failed, rollouts = [], 0
@@ -275,8 +310,8 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
     """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task`; return the paths."""
     if task == "stability":
         return write_stability_tables(runs_dir, out_dir)
-    if task not in ("cdg", "nvs", "dvc"):
-        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs, dvc, stability")
+    if task not in ("cdg", "nvs", "dvc", "extract"):
+        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs, dvc, extract, stability")
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for _, rec in iter_records(runs_dir, task):
         groups.setdefault((rec["scene"], rec["preset"]), []).append(rec)
@@ -292,6 +327,10 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
         elif task == "dvc":
             display, numeric, notes = dvc_frame(recs)
             caption = dvc_caption(scene, preset, recs, notes)
+        elif task == "extract":
+            display, numeric, notes = extract_frame(recs)
+            seeds = sorted({len(r["seeds"]) for r in recs})
+            caption = f"Mesh extraction ({scene}, preset {preset}); mean ± std over {'/'.join(map(str, seeds))} extraction seeds. {notes[0]}."
         else:
             display, numeric = cdg_frame(recs)
             seeds = sorted({len(r["seeds"]) for r in recs})

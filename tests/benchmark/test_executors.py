@@ -1,4 +1,4 @@
-"""The Ray executor runs the (run, seed) jobs of a sweep as Ray tasks and gives the local executor's numbers."""
+"""Executors: parallel local worker processes and Ray tasks run the (run, seed) jobs of a sweep with the sequential numbers."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.reproduce import reproduce
 from clods_bench.errors import ClodsError
+from clods_bench.threads import MAX_THREADS_ENV, torch_threads
 from tests.benchmark.test_reproduce import _overrides, _plan
 
 TIMING = ("infer_ms_per_step", "fit_seconds")
@@ -23,9 +24,44 @@ def test_unknown_executor_is_a_clear_error() -> None:
     with pytest.raises(ClodsError, match="unknown executor 'dask'"):
         make_executor("dask")
     assert isinstance(make_executor("local"), LocalExecutor)
+    with pytest.raises(ClodsError, match="--jobs"):
+        make_executor("local", jobs=0)
 
 
-@pytest.mark.slow  # ~30 s on 2 shared cores: Ray's start (~15 s) and its workers' first imports (~15 s)
+def _threads_seen(asked: int) -> tuple[int, str | None, int]:
+    """(torch threads at start, the cap variable, threads inside a block that asks for `asked`) in a worker."""
+    import os
+
+    import torch
+
+    with torch_threads(asked):
+        inside = torch.get_num_threads()
+    return torch.get_num_threads(), os.environ.get(MAX_THREADS_ENV), inside
+
+
+def test_parallel_workers_share_the_cores() -> None:
+    import os
+
+    seen = LocalExecutor(jobs=2).map(_threads_seen, [8, 8, 1], progress=False)
+    cap = max(1, (os.cpu_count() or 1) // 2)
+    assert seen == [(cap, str(cap), cap), (cap, str(cap), cap), (cap, str(cap), 1)]  # a config asking for 8 gets the cap
+
+
+def test_parallel_sweep_matches_sequential(tmp_path: Path, tiny_root: Path) -> None:
+    plan = _plan(tmp_path)
+    one = reproduce("ci", tmp_path / "one", default_registry(), Console(quiet=True), "local", plan, _overrides(tiny_root, tmp_path / "runs_one"))
+    two = reproduce("ci", tmp_path / "two", default_registry(), Console(quiet=True), "local", plan, _overrides(tiny_root, tmp_path / "runs_two"), jobs=2)
+    assert one["jobs"] == 1 and two["jobs"] == 2
+    for a, b in zip(one["runs"], two["runs"]):
+        ra = json.loads((Path(a["record_dir"]) / RECORD_FILE).read_text())
+        rb = json.loads((Path(b["record_dir"]) / RECORD_FILE).read_text())
+        assert ra["per_seed"]["0"]["metrics"] == rb["per_seed"]["0"]["metrics"] and ra["seeds"] == rb["seeds"] == [0, 1]
+    for stem in ("t_cdg", "t_damp"):
+        ta = pd.read_csv(tmp_path / "one" / f"{stem}.csv").drop(columns=list(TIMING))
+        tb = pd.read_csv(tmp_path / "two" / f"{stem}.csv").drop(columns=list(TIMING))
+        pd.testing.assert_frame_equal(ta, tb, check_exact=True)
+
+
 def test_ray_sweep_matches_local(tmp_path: Path, tiny_root: Path) -> None:
     ray = pytest.importorskip("ray")
     plan = _plan(tmp_path)

@@ -9,10 +9,9 @@ their initial positions. A frame stops at the iteration cap or when the loss has
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,20 +25,7 @@ from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.edge import edge_lengths, edge_loss, mesh_edges
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Use `n` torch CPU threads inside the block (None: leave the setting alone)."""
-    if n is None:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
+from clods_bench.threads import torch_threads
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ Public API (the CDG and DVC tasks use it): `train_from_video(ctx, train_ids)` an
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from clods_bench.atomic import file_lock
 from clods_bench.benchmark.clods.cache import ExtractionCache, digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory
@@ -26,7 +28,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
-__all__ = ["PipelineResult", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
+__all__ = ["Extraction", "PipelineResult", "extract_meshes", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
 
 
 @dataclass
@@ -64,8 +66,19 @@ def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
     return views
 
 
-def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
-    """Stages 1-3 on the videos of `train_ids` (frames 0..interp_steps, training cameras only)."""
+@dataclass
+class Extraction:
+    """Stages 1-2 of one row: extracted meshes (with the true ones), statistics, per-frame E-GT and the cache key."""
+
+    meshes: list[Trajectory]  # extracted, frames 0..interp_steps, one per training video
+    truth: list[Trajectory]  # the ground truth over the same frames
+    stats: dict[str, float]
+    egt: np.ndarray  # (B, frames) RMSE of extracted vs true mesh per frame (E-GT, the appendix figure)
+    key: str  # extraction cache key (stage 3 is keyed by it)
+
+
+def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
+    """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, training cameras only), cached and resumable."""
     from clods_bench.benchmark.tasks.cdg import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
@@ -90,8 +103,9 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("{task.fields[info]}"))
     with Progress(*columns, transient=True, disable=not cfg.progress) as bar:
         for g, video, i, init in zip(gts, videos, train_ids, initial):
-            cached += cache.load(i) is not None
-            extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar))
+            with file_lock(cache.path(i).with_suffix(".lock")):  # a parallel job extracting it: wait, then read it
+                cached += cache.load(i) is not None
+                extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar))
     stats["stage2_wall_seconds"] = time.perf_counter() - t0
 
     seconds = np.concatenate([e.seconds[1:] for e in extracted])
@@ -107,16 +121,27 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
         "egt_end": float(egt[:, -1].mean()),
         "egt_initial": float(egt[:, 0].mean()),
     })  # fmt: skip
-
     meshes = [
         Trajectory(g.cells, g.mesh_pos, g.node_type, e.world_pos.astype(np.float32), g.dt, {**g.meta, "source": "clods stage 2", "cache": cache.key})
         for g, e in zip(gts, extracted)
     ]
-    pretrain = [store.load_trajectory(i).slice(0, frames) for i in splits.first_half] if opts.variant == "finetune" else None
-    sim, sim_stats = train_simulator(ctx, opts, meshes, pretrain)
+    return Extraction(meshes, gts, stats, egt, cache.key)
+
+
+def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
+    """Stages 1-3 on the videos of `train_ids` (frames 0..interp_steps, training cameras only)."""
+    from clods_bench.benchmark.tasks.cdg import split_spec
+
+    opts, splits = clods_config(ctx.config), split_spec(ctx)
+    ext = extract_meshes(ctx, train_ids)
+    stats = dict(ext.stats)
+    pretrain_ids = list(splits.first_half) if opts.variant == "finetune" else []
+    sim, sim_stats = train_simulator(ctx, opts, ext.meshes, ext.key, pretrain_ids)
     stats.update(sim_stats)
-    per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, egt)}
-    return PipelineResult(sim, stats, egt.mean(axis=0).tolist(), per_traj)
+    parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")
+    stats["cost_seconds"] = float(sum(v for v in (stats.get(k, 0.0) for k in parts) if math.isfinite(v)))  # a cache without its cost counts 0
+    per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, ext.egt)}
+    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj)
 
 
 def train_from_video(ctx: TaskContext, train_ids: Sequence[int]) -> tuple[Simulator, dict[str, float]]:

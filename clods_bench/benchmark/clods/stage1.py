@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,15 +18,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from clods_bench.atomic import atomic_path
+from clods_bench.atomic import atomic_path, file_lock, write_json
 from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
-from clods_bench.benchmark.clods.extract import torch_threads
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.interfaces import Renderer
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.threads import torch_threads
 
 
 def cache_root(ctx: TaskContext, opts: ClodsConfig) -> Path:
@@ -73,24 +74,31 @@ def fit_stage1_keyed(
         "images": _sha(unit), "cameras": [c.to_dict() for c in cameras],
     })  # fmt: skip
     path = cache_root(ctx, opts) / f"stage1-{key}.pt"
-    if path.exists():
-        try:
-            renderer = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
-            raise ClodsError(f"unreadable stage-1 cache file ({type(exc).__name__}: {exc})", where=str(path), hint="delete it to fit again") from None
-        return renderer, {"stage1_seconds": 0.0, "stage1_cached": 1.0}, key
-    renderer = build_renderer(dataclasses.replace(ctx, seed=seed))
-    if getattr(renderer, "per_frame", False):
-        raise ClodsError("stage 2 needs a mesh-driven renderer, this one is fitted per frame", where=f"renderer '{cfg.renderer}'", hint="use smgs or games")
-    t0 = time.perf_counter()
-    with torch_threads(opts.num_threads):
-        stats = renderer.fit(np.asarray(initial, np.float32), cells, mesh_pos, unit, list(cameras)) or {}
-    seconds = time.perf_counter() - t0
-    with atomic_path(path) as tmp:
-        torch.save(renderer, tmp)
-    out = {"stage1_seconds": seconds, "stage1_cached": 0.0}
-    out.update({f"stage1/{k}": float(v) for k, v in stats.items()})
-    return renderer, out, key
+    cost_file = path.with_suffix(".json")  # the fit's recorded cost, so a cached fit still counts in training time
+    with file_lock(path.with_suffix(".lock")):  # a parallel job fitting the same renderer: wait, then read its fit
+        if path.exists():
+            try:
+                renderer = torch.load(path, map_location="cpu", weights_only=False)
+            except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
+                raise ClodsError(f"unreadable stage-1 cache file ({type(exc).__name__}: {exc})", where=str(path), hint="delete it to fit again") from None
+            try:
+                cost = float(json.loads(cost_file.read_text())["seconds"])
+            except (OSError, ValueError, KeyError, TypeError):
+                cost = float("nan")
+            return renderer, {"stage1_seconds": 0.0, "stage1_cost_seconds": cost, "stage1_cached": 1.0}, key
+        renderer = build_renderer(dataclasses.replace(ctx, seed=seed))
+        if getattr(renderer, "per_frame", False):
+            raise ClodsError("stage 2 needs a mesh-driven renderer, this one is fitted per frame", where=f"renderer '{cfg.renderer}'", hint="use smgs or games")
+        t0 = time.perf_counter()
+        with torch_threads(opts.num_threads):
+            stats = renderer.fit(np.asarray(initial, np.float32), cells, mesh_pos, unit, list(cameras)) or {}
+        seconds = time.perf_counter() - t0
+        with atomic_path(path) as tmp:
+            torch.save(renderer, tmp)
+        write_json(cost_file, {"seconds": seconds})
+        out = {"stage1_seconds": seconds, "stage1_cost_seconds": seconds, "stage1_cached": 0.0}
+        out.update({f"stage1/{k}": float(v) for k, v in stats.items()})
+        return renderer, out, key
 
 
 def fit_stage1(

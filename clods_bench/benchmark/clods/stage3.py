@@ -2,7 +2,9 @@
 
 Learned simulators get `task_config.clods.sim_overrides` laid over their `sim_config` (by default
 the 8-step rollout loss). The 'finetune' variant first trains the simulator with its own config on
-ground-truth meshes (MGN*) and starts stage 3 from those weights.
+ground-truth meshes (MGN*: the same fit as the MGN* row's, shared through the fit cache) and starts
+stage 3 from those weights. The stage-3 fit is keyed by the extraction it learns from, so the CDG
+and DVC tasks and every re-run of the same row train it once.
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from clods_bench.atomic import file_lock
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.interfaces import FitContext, Simulator
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -46,23 +50,43 @@ def warm_start(sim: Any, pretrained: Any, name: str) -> None:
 
 
 def train_simulator(
-    ctx: TaskContext, opts: ClodsConfig, meshes: Sequence[Trajectory], pretrain: Sequence[Trajectory] | None = None
+    ctx: TaskContext,
+    opts: ClodsConfig,
+    meshes: Sequence[Trajectory],
+    extraction_key: str,
+    pretrain_ids: Sequence[int] = (),
 ) -> tuple[Simulator, dict[str, float]]:
-    """Fit the run's simulator on `meshes` (after pre-training on `pretrain` when given); return it and statistics."""
-    from clods_bench.benchmark.tasks.cdg import build_simulator
+    """Fit the run's simulator on the extracted `meshes` (identified by `extraction_key`), after pre-training on the
+    ground-truth meshes of `pretrain_ids` when given; return it and statistics (`*_cost_seconds`: training time,
+    cached fits at their recorded cost). Both fits run in content-addressed work directories (`fit_cache`)."""
+    from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes
 
     cfg = ctx.config
     stats: dict[str, float] = {}
-    sim = build_simulator(stage3_context(ctx, opts))
-    if pretrain:
+    s3ctx = stage3_context(ctx, opts)
+    sim = build_simulator(s3ctx)
+    pre_identity = None
+    if pretrain_ids:
+        from clods_bench.datasets.store import DatasetStore
+
         pre = build_simulator(ctx)
-        t0 = time.perf_counter()
-        pre_stats = pre.fit(list(pretrain), FitContext(work_dir=ctx.work_dir / "pretrain", seed=ctx.seed, progress=cfg.progress)) or {}
-        stats["pretrain_seconds"] = time.perf_counter() - t0
+        ids, pre_stats, wall = fit_on_meshes(ctx, pre, DatasetStore.open(cfg.data.dataset_dir()), list(pretrain_ids))
+        stats["pretrain_seconds"] = wall
+        stats["pretrain_cost_seconds"] = fit_cost_seconds(wall, pre_stats)
         stats.update({f"pretrain/{k}": float(v) for k, v in pre_stats.items()})
         warm_start(sim, pre, str(cfg.sim))
+        pre_identity = sim_fit_identity(ctx, ids, meshes[0].num_steps if meshes else 0, supervision="mesh")
+    frames = max((m.num_steps for m in meshes), default=0)
+    identity = sim_fit_identity(
+        ctx, list(range(len(meshes))), frames, sim_config=s3ctx.config.sim_config.get(str(cfg.sim), {}),
+        supervision="video", extraction=extraction_key, pretrain=pre_identity,
+    )  # fmt: skip
+    work = fit_work_dir(ctx, identity)
     t0 = time.perf_counter()
-    fit_stats = sim.fit(list(meshes), FitContext(work_dir=ctx.work_dir / "stage3", seed=ctx.seed, progress=cfg.progress)) or {}
-    stats["stage3_seconds"] = time.perf_counter() - t0
+    with file_lock(work / "fit.lock"):
+        fit_stats = sim.fit(list(meshes), FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
+    wall = time.perf_counter() - t0
+    stats["stage3_seconds"] = wall
+    stats["stage3_cost_seconds"] = fit_cost_seconds(wall, fit_stats)
     stats.update({f"stage3/{k}": float(v) for k, v in fit_stats.items()})
     return sim, stats

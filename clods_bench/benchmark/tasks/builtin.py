@@ -6,6 +6,7 @@ from clods_bench.benchmark.descriptors import TaskSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
+from clods_bench.benchmark.tasks.extract import run_extract
 from clods_bench.benchmark.tasks.nvs import run_nvs
 from clods_bench.benchmark.tasks.stability import run_stability
 
@@ -35,5 +36,11 @@ def clods_bench_tasks() -> list[TaskSpec]:
             name="dvc",
             description="DVC forward / video prediction: a video predictor (--predictor) or a simulator rolled out and rendered (--sim --renderer); PSNR/SSIM/LPIPS/RMSE (Table 4).",
             run=run_dvc,
+        ),
+        TaskSpec(
+            name="extract",
+            description="Mesh extraction (CloDS stages 1-2): E-GT, RMSE of the meshes recovered from video against the truth (ablations).",
+            run=run_extract,
+            needs=("renderer",),
         ),
     ]

@@ -7,7 +7,9 @@ import time
 import numpy as np
 from rich.progress import Progress
 
+from clods_bench.atomic import file_lock
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
+from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput, Simulator, check_rollout
 from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.datasets.splits import SplitSpec
@@ -40,6 +42,21 @@ def build_simulator(ctx: TaskContext) -> Simulator:
     return sim
 
 
+def fit_on_meshes(ctx: TaskContext, sim: Simulator, store: DatasetStore, train_ids: list[int] | None = None) -> tuple[list[int], dict, float]:
+    """Fit `sim` on the interpolation frames of the training meshes (all, or the first half for `train_subset`
+    first_half) in its content-addressed work directory; return (train_ids, fit statistics, wall seconds)."""
+    cfg, splits = ctx.config, split_spec(ctx)
+    if train_ids is None:
+        train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
+    frames = splits.interp_steps + 1
+    train = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
+    work = fit_work_dir(ctx, sim_fit_identity(ctx, train_ids, frames, supervision="mesh"))
+    t0 = time.perf_counter()
+    with file_lock(work / "fit.lock"):  # a parallel job training the same fit: wait, then resume its finished checkpoint
+        stats = sim.fit(train, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
+    return list(train_ids), dict(stats), time.perf_counter() - t0
+
+
 def run_cdg(ctx: TaskContext) -> TaskResult:
     """One seed of CDG: fit on the training meshes' interpolation frames, roll out viewed and unviewed trajectories."""
     cfg = ctx.config
@@ -54,12 +71,12 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
         clods = run_pipeline(ctx, train_ids)
         sim, fit_stats = clods.simulator, clods.stats
         clods_extra = {"egt_curve": clods.egt_curve, "egt_per_trajectory": clods.egt_per_trajectory}
+        fit_wall = time.perf_counter() - t0
+        fit_seconds = max(fit_wall, float(fit_stats.get("cost_seconds", 0.0)))
     else:
         sim = build_simulator(ctx)
-        train_ids = splits.train if cfg.train_subset == "all" else splits.first_half
-        train = [store.load_trajectory(i).slice(0, splits.interp_steps + 1) for i in train_ids]
-        fit_stats = sim.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress))
-    fit_seconds = time.perf_counter() - t0
+        train_ids, fit_stats, fit_wall = fit_on_meshes(ctx, sim, store)
+        fit_seconds = fit_cost_seconds(fit_wall, fit_stats)
 
     groups = {"viewed": list(splits.viewed), "unviewed": list(splits.unviewed)}
     curves: dict[str, list[np.ndarray]] = {g: [] for g in groups}
@@ -84,7 +101,8 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
 
     metrics = cdg_columns(curves, splits.interp_steps, splits.num_steps)
     timings = {
-        "fit_seconds": fit_seconds,
+        "fit_seconds": fit_seconds,  # training cost; a fit read from the cache counts at its recorded cost
+        "fit_wall_seconds": fit_wall,
         "infer_ms_per_step": 1000.0 * infer_seconds / max(infer_steps, 1),
         "infer_seconds": infer_seconds,
     }

@@ -50,13 +50,15 @@ class Gs3dConfig:
     """Initial opacity (3DGS: 0.1)."""
     box_padding: float = 0.1
     """'random' init: the bounding box grows by this fraction of its largest side on every side."""
-    lr_means: float = 0.002
-    """Adam learning rate of the centres, in units of the mesh's bounding-box diagonal (3DGS: 1.6e-4 of the scene extent)."""
-    lr_quats: float = 0.005
+    lr_means: float = 1.6e-4
+    """Adam learning rate of the centres, in units of the mesh's bounding-box diagonal (3DGS: 1.6e-4 of the scene extent).
+    Larger rates fit the training views better and the held-out ones worse: at ci (4 training cameras, 64 px)
+    0.002 gave 17.3 dB held-out PSNR, 1.6e-4 19.2 dB, frozen centres and rotations 21.9 dB."""
+    lr_quats: float = 0.001
     """Adam learning rate of the quaternions (3DGS: 0.001)."""
-    lr_scale: float = 0.02
+    lr_scale: float = 0.005
     """Adam learning rate of the log scales (3DGS: 0.005)."""
-    lr_opacity: float = 0.1
+    lr_opacity: float = 0.05
     """Adam learning rate of the opacity logits (3DGS: 0.05)."""
     lr_color: float = 0.05
     """Adam learning rate of the colours (SH degree >= 1 terms at 1/20 of it)."""

@@ -24,6 +24,7 @@ from rich.progress import Progress
 from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.interfaces import FitContext, check_video
 from clods_bench.errors import ClodsError
+from clods_bench.threads import torch_threads
 from clods_bench.plugins.video.simvp_model import SimVP, strides
 
 CHECKPOINT_FILE = "simvp.pt"
@@ -72,20 +73,6 @@ class SimvpConfig:
             raise ClodsError(f"must be > 0, got {self.learning_rate}", where="video_config.simvp.learning_rate")
         if self.checkpoint_every < 0 or self.num_threads < 0:
             raise ClodsError("checkpoint_every and num_threads must be >= 0", where="video_config.simvp")
-
-
-class _Threads:
-    """Context manager: torch CPU threads set to `n` inside (0: unchanged)."""
-
-    def __init__(self, n: int) -> None:
-        self.n, self.old = n, torch.get_num_threads()
-
-    def __enter__(self) -> None:
-        if self.n:
-            torch.set_num_threads(self.n)
-
-    def __exit__(self, *exc: Any) -> None:
-        torch.set_num_threads(self.old)
 
 
 def _digest(cfg: SimvpConfig, videos: Sequence[np.ndarray]) -> str:
@@ -151,7 +138,7 @@ class SimvpPredictor:
             step, losses = self._resume(path, digest, model, opt, sched)
         rng = np.random.default_rng(ctx.seed + 1000 * step)
         t0 = time.perf_counter()
-        with _Threads(c.num_threads), Progress(transient=True, disable=not (ctx.progress and self.progress)) as bar:
+        with torch_threads(c.num_threads or None), Progress(transient=True, disable=not (ctx.progress and self.progress)) as bar:
             job = bar.add_task("simvp training", total=c.train_steps, completed=step)
             model.train()
             while step < c.train_steps:
@@ -220,7 +207,7 @@ class SimvpPredictor:
             raise ClodsError(f"needs {c.context_frames} context frames, got {ctx.shape[1]}", where="simvp.predict", hint="lower video_config.simvp.context_frames")
         x = torch.from_numpy(np.ascontiguousarray(ctx[:, -c.context_frames :].transpose(0, 1, 4, 2, 3)))
         out = []
-        with _Threads(c.num_threads):
+        with torch_threads(c.num_threads or None):
             while sum(o.shape[1] for o in out) < num_frames:
                 x = self.model(x).clamp(0.0, 1.0)
                 out.append(x)

@@ -81,7 +81,7 @@ def test_fit_raises_training_psnr_well_above_the_init(mesh, init):
     cfg = dict(num_gaussians=300, init=init)
     untrained = Gs3dRenderer(Gs3dConfig(iterations=0, **cfg))
     untrained.fit(mesh[0][None], mesh[1], mesh[2], target[None].numpy(), cams)
-    trained = Gs3dRenderer(Gs3dConfig(iterations=80, **cfg))
+    trained = Gs3dRenderer(Gs3dConfig(iterations=200, **cfg))
     stats = trained.fit(mesh[0][None], mesh[1], mesh[2], target[None].numpy(), cams)
     v = torch.tensor(mesh[0], dtype=torch.float32)
     with torch.no_grad():

@@ -35,6 +35,9 @@ class LearnedConfig:
     """'one_step': MGN's normalised-acceleration loss; 'rollout': CloDS eq. 8, `rollout_length` steps backpropagated."""
     rollout_length: int = 8
     """Steps K of the rollout loss (paper: 8)."""
+    rollout_start_step: int = 0
+    """With loss 'rollout': optimiser steps before this one train on 1-step windows (K = 1, where the two losses
+    agree), later ones on K-step rollouts, a curriculum that spends cheap steps first (0: K steps from the start)."""
     batch_size: int = 1
     """Training samples per optimiser step, batched as one disjoint graph (MGN cloth: 1)."""
     train_steps: int = 10_000_000
@@ -63,7 +66,7 @@ class LearnedConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ClodsError(f"must be an integer >= 1, got {value!r}", where=f"{where}.{name}")
-        for name in ("hidden_layers", "warmup_steps"):
+        for name in ("hidden_layers", "warmup_steps", "rollout_start_step"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 0:
                 raise ClodsError(f"must be an integer >= 0, got {value!r}", where=f"{where}.{name}")

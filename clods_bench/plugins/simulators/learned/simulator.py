@@ -14,11 +14,10 @@ trained on them would learn a cloth that never feels its pins. A scene that decl
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -33,22 +32,9 @@ from clods_bench.plugins.simulators.learned.config import LearnedConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, TopologyCache
 from clods_bench.plugins.simulators.learned.model import LearnedModel, ProcessorFactory
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
+from clods_bench.threads import torch_threads
 
 DT_RTOL = 1e-6
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Use `n` torch CPU threads inside the block (None: leave the setting alone)."""
-    if n is None:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 class LearnedSimulator:

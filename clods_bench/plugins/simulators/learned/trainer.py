@@ -84,7 +84,7 @@ class Trainer:
         self.model = model
         self.config = config
         self.data = data
-        self.optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+        self.optimizer = torch.optim.Adam(model.parameters(), lr=config.learning_rate, foreach=True)
         self.generator = torch.Generator().manual_seed(int(seed))
         self.step = 0
         self.train_seconds = 0.0
@@ -126,15 +126,16 @@ class Trainer:
         target = self.model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
         return ((target - out) ** 2).sum(dim=1)[topo.normal].mean()
 
-    def rollout_loss(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
-        """CloDS eq. 8: K unrolled steps, mean of node-mean squared position errors over the output std."""
+    def rollout_loss(self, batch: Batch, noise: torch.Tensor, steps: int | None = None) -> torch.Tensor:
+        """CloDS eq. 8: K unrolled steps (`steps`, default all the batch's window), mean of node-mean squared
+        position errors over the output std."""
         topo, model = batch.topo, self.model
         f, n = batch.frames.double(), noise.double()  # integrate and compare in float64 (see _target_acceleration)
         prev, cur = f[0], f[1] + n
         model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
         scale = model.output_normalizer.std.double()
         total = f.new_zeros(())
-        steps = f.shape[0] - 2
+        steps = f.shape[0] - 2 if steps is None else min(int(steps), f.shape[0] - 2)
         for k in range(1, steps + 1):
             out = model(topo, batch.key, cur.float(), prev.float(), accumulate=(k == 1))
             nxt = integrate(cur, prev, model.acceleration(out).double(), topo.normal, f[k + 1])
@@ -155,7 +156,10 @@ class Trainer:
             return None
         for group in self.optimizer.param_groups:
             group["lr"] = cfg.learning_rate_at(self.step)
-        loss = self.rollout_loss(batch, noise) if cfg.loss == "rollout" else self.one_step_loss(batch, noise)
+        if cfg.loss == "rollout":
+            loss = self.rollout_loss(batch, noise, steps=1 if self.step < cfg.rollout_start_step else None)
+        else:
+            loss = self.one_step_loss(batch, noise)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
