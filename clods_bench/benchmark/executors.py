@@ -67,12 +67,15 @@ def run_seed_job(job: SeedJob) -> dict[str, Any]:
 
 
 def _init_worker(threads: int) -> None:
-    """Start of a parallel worker process: cap every torch thread setting at `threads` (see `clods_bench.threads`)."""
+    """Start of a parallel worker process: cap torch's threads (every later setting too, see `clods_bench.threads`)
+    and numba's parallel kernels (the splatting backend) at `threads`."""
     os.environ[MAX_THREADS_ENV] = str(threads)
-    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+    os.environ["OMP_NUM_THREADS"] = os.environ["NUMBA_NUM_THREADS"] = str(threads)
+    import numba
     import torch
 
     torch.set_num_threads(threads)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
 
 
 class LocalExecutor:

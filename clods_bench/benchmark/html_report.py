@@ -21,7 +21,7 @@ from clods_bench.errors import ClodsError
 INDEX_FILE = "index.html"
 MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4", ".webm": "video/webm"}
 MAX_EMBED_BYTES = 25 * 2**20  # larger media are linked by path instead of embedded
-TASK_ORDER = ("cdg", "nvs", "dvc", "stability")
+TASK_ORDER = ("cdg", "nvs", "dvc", "stability", "extract")
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
@@ -103,9 +103,17 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
             if task == "cdg":
                 stem = f"{scene}_{preset}"
                 for name, caption in ((f"error_vs_time_{stem}.png", "error against inference and training time (Pareto front in red)"),
-                                      (f"rollout_rmse_{stem}.png", "rollout RMSE per frame (dashed: end of interpolation)")):  # fmt: skip
+                                      (f"rollout_rmse_{stem}.png", "rollout RMSE per frame (dashed: end of interpolation)"),
+                                      (f"error_accumulation_{stem}.png", "CloDS rows, training videos: extraction vs truth, prediction vs truth, prediction vs extraction")):  # fmt: skip
                     if (out_dir / name).is_file():
                         parts.append(media_html(out_dir / name, caption))
+            if task == "extract":  # E-GT per frame, one line per setting
+                from clods_bench.benchmark.report import mean_curves, plot_curves
+
+                png = out_dir / f"extraction_egt_{scene}_{preset}_{len(written)}.png".replace(" ", "_")
+                plot_curves({rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}, None, f"mesh extraction error per frame ({scene}, preset {preset})", png)
+                written.append(png)
+                parts.append(media_html(png, "E-GT: RMSE of the extracted against the true mesh per frame, mean over seeds"))
             for rdir, rec in items:
                 for path in _seed_media(rdir, media_seeds):
                     rel = path.relative_to(rdir)

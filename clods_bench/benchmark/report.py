@@ -58,21 +58,31 @@ def report_points(records: list[dict[str, Any]], metric: str = HEADLINE) -> pd.D
     return frame
 
 
+def padded_mean(curves: list[np.ndarray]) -> np.ndarray:
+    """Element-wise mean of curves of unequal length (missing tail and NaN entries stay NaN: a diverged seed shows as a gap)."""
+    n = max(len(c) for c in curves)
+    stacked = np.full((len(curves), n), np.nan)
+    for i, c in enumerate(curves):
+        stacked[i, : len(c)] = c
+    return stacked.mean(axis=0)
+
+
+def _seed_curves(rdir: Path, rec: dict[str, Any], section: str, key: str | None = None) -> dict[str, np.ndarray]:
+    """Per name, the mean over the record's finished seeds of `result[section]` (or `result[section][key]`) curves."""
+    per_name: dict[str, list[np.ndarray]] = {}
+    for seed in rec.get("seeds", []):
+        result = load_seed_result(rdir, int(seed)) or {}
+        found = result.get(section) or {}
+        if key is not None:
+            found = found.get(key) or {}
+        for name, curve in found.items():
+            per_name.setdefault(name, []).append(np.array([np.nan if v is None else v for v in curve], np.float64))
+    return {name: padded_mean(curves) for name, curves in per_name.items()}
+
+
 def mean_curves(rdir: Path, rec: dict[str, Any]) -> dict[str, np.ndarray]:
     """Per group ('viewed', 'unviewed'), the RMSE-per-frame curve averaged over the record's finished seeds."""
-    per_group: dict[str, list[np.ndarray]] = {}
-    for seed in rec.get("seeds", []):
-        result = load_seed_result(rdir, int(seed))
-        for group, curve in ((result or {}).get("curves") or {}).items():
-            per_group.setdefault(group, []).append(np.array([np.nan if v is None else v for v in curve], np.float64))
-    out = {}
-    for group, curves in per_group.items():
-        n = max(len(c) for c in curves)
-        stacked = np.full((len(curves), n), np.nan)
-        for i, c in enumerate(curves):
-            stacked[i, : len(c)] = c
-        out[group] = stacked.mean(axis=0)
-    return out
+    return _seed_curves(rdir, rec, "curves")
 
 
 def _save_png(fig: Any, path: Path) -> None:
@@ -146,6 +156,38 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, ti
     plt.close(fig)
 
 
+def accumulation_curves(rdir: Path, rec: dict[str, Any]) -> dict[str, np.ndarray]:
+    """A CloDS record's error-accumulation curves ('E-GT', 'P-GT', 'P-E' per frame), averaged over its seeds ({} for others)."""
+    return _seed_curves(rdir, rec, "extra", "accumulation")
+
+
+def plot_accumulation(curves: dict[str, dict[str, np.ndarray]], title: str, path: Path) -> None:
+    """One panel per CloDS row: extraction vs truth (E-GT), prediction vs truth (P-GT), prediction vs extraction (P-E)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = sorted(curves)
+    fig, axes = plt.subplots(1, len(labels), figsize=(4.6 * len(labels), 3.8), squeeze=False, sharey=True, layout="constrained")
+    styles = {"E-GT": ("tab:green", "extracted vs truth (E-GT)"), "P-GT": ("tab:blue", "predicted vs truth (P-GT)"),
+              "P-E": ("tab:orange", "predicted vs extracted (P-E)")}  # fmt: skip
+    for ax, label in zip(axes[0], labels):
+        for key, (color, name) in styles.items():
+            c = curves[label].get(key)
+            if c is not None:
+                ax.plot(np.arange(1, len(c)), c[1:], color=color, label=name)
+        ax.set_title(label)
+        ax.set_xlabel("frame (training videos)")
+        ax.grid(True, alpha=0.3)
+        if ax is axes[0][0]:
+            ax.set_ylabel("RMSE (m)")
+            ax.legend(fontsize=8)
+    fig.suptitle(title)
+    _save_png(fig, path)
+    plt.close(fig)
+
+
 def write_report(runs_dir: Path, out_dir: Path, metric: str = HEADLINE) -> list[Path]:
     """Error-vs-time plots (PNG + CSV, Pareto front marked) and RMSE-per-frame curves per (scene, preset) of the CDG records."""
     groups: dict[tuple[str, str], list[tuple[Path, dict[str, Any]]]] = {}
@@ -177,4 +219,11 @@ def write_report(runs_dir: Path, out_dir: Path, metric: str = HEADLINE) -> list[
         curves_png = out_dir / f"rollout_rmse_{stem}.png"
         plot_curves(curves, interp, f"rollout RMSE per frame ({scene}, preset {preset})", curves_png)
         written += [csv_path, png_path, curves_csv, curves_png]
+        accumulation = {rec["label"]: c for rdir, rec in items if (c := accumulation_curves(rdir, rec))}
+        if accumulation:
+            rows = [{"label": label, "curve": key, "frame": t, "rmse": float(v)} for label, per in accumulation.items() for key, c in per.items() for t, v in enumerate(c)]
+            acc_csv, acc_png = out_dir / f"error_accumulation_{stem}.csv", out_dir / f"error_accumulation_{stem}.png"
+            write_text(acc_csv, pd.DataFrame(rows, columns=["label", "curve", "frame", "rmse"]).to_csv(index=False))
+            plot_accumulation(accumulation, f"error accumulation on the training videos ({scene}, preset {preset})", acc_png)
+            written += [acc_csv, acc_png]
     return written

@@ -78,15 +78,18 @@ def _lpips_reasons(rec: dict[str, Any]) -> list[str]:
     return sorted({r for s in rec.get("per_seed", {}).values() if (r := s.get("extra", {}).get("lpips_unavailable"))})
 
 
-def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
-    """(display frame in the paper's Table 3 layout, numeric frame for CSV, footnotes); rows are renderers.
+def image_metric_frame(
+    records: list[dict[str, Any]], columns: tuple[tuple[str, str, float, int], ...], time_key: str, time_name: str
+) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame, numeric frame with the scaled numbers shown, footnotes) of image-metric records (NVS, DVC).
 
-    A record without LPIPS gets 'unavailable [k]' in its LPIPS cell, footnote k saying why.
+    `columns`: (metric key, column name, scale, digits). A record without LPIPS gets 'unavailable [k]' in its
+    LPIPS cell, footnote k saying why.
     """
     display_rows, numeric_rows, index, notes = [], [], [], []
     for rec in records:
         row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
-        for key, name, scale, digits in NVS_COLUMNS:
+        for key, name, scale, digits in columns:
             col = key if scale == 1.0 else f"{key}_x{scale:g}"  # CSV holds the scaled numbers shown
             m = rec["metrics"].get(key)
             if m is None or m["mean"] is None:
@@ -102,17 +105,22 @@ def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
                 row[("Quality", name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
                 num[f"{col}/mean"], num[f"{col}/std"] = scale * m["mean"], scale * (m["std"] or 0.0)
         t = rec["timings"]
-        render = t.get("render_ms_per_frame", {}).get("mean", float("nan"))
+        per_image = t.get(time_key, {}).get("mean", float("nan"))
         fit = t.get("fit_seconds", {}).get("mean", float("nan"))
-        row[("Time", "render ms/frame")] = f"{render:.3g}"
+        row[("Time", time_name)] = f"{per_image:.3g}"
         row[("Time", "fit s")] = f"{fit:.3g}"
-        num["render_ms_per_frame"], num["fit_seconds"] = render, fit
+        num[time_key], num["fit_seconds"] = per_image, fit
         display_rows.append(row)
         numeric_rows.append(num)
         index.append(rec["label"])
     display = pd.DataFrame(display_rows, index=pd.Index(index, name="Model"))
     display.columns = pd.MultiIndex.from_tuples(display.columns)
     return display, pd.DataFrame(numeric_rows), [f"[{k + 1}] {n}" for k, n in enumerate(notes)]
+
+
+def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame in the paper's Table 3 layout, numeric frame for CSV, footnotes); rows are renderers."""
+    return image_metric_frame(records, NVS_COLUMNS, "render_ms_per_frame", "render ms/frame")
 
 
 def nvs_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
@@ -134,40 +142,9 @@ DVC_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 4 repo
 
 
 def dvc_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
-    """(display frame in the paper's Table 4 layout, numeric frame for CSV with the scaled numbers, footnotes).
-
-    Rows are video predictors and simulator+renderer pairs; a missing LPIPS gets 'unavailable [k]'.
-    """
-    display_rows, numeric_rows, index, notes = [], [], [], []
-    for rec in records:
-        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
-        for key, name, scale, digits in DVC_COLUMNS:
-            col = key if scale == 1.0 else f"{key}_x{scale:g}"
-            m = rec["metrics"].get(key)
-            if m is None or m["mean"] is None:
-                reasons = _lpips_reasons(rec) if key == "lpips" else []
-                marks = []
-                for reason in reasons or ["not recorded"]:
-                    if reason not in notes:
-                        notes.append(reason)
-                    marks.append(f"[{notes.index(reason) + 1}]")
-                row[("Quality", name)] = "unavailable " + "".join(marks)
-                num[f"{col}/mean"] = num[f"{col}/std"] = float("nan")
-            else:
-                row[("Quality", name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
-                num[f"{col}/mean"], num[f"{col}/std"] = scale * m["mean"], scale * (m["std"] or 0.0)
-        t = rec["timings"]
-        pred = t.get("predict_ms_per_frame", {}).get("mean", float("nan"))
-        fit = t.get("fit_seconds", {}).get("mean", float("nan"))
-        row[("Time", "predict ms/frame")] = f"{pred:.3g}"
-        row[("Time", "fit s")] = f"{fit:.3g}"
-        num["predict_ms_per_frame"], num["fit_seconds"] = pred, fit
-        display_rows.append(row)
-        numeric_rows.append(num)
-        index.append(rec["label"])
-    display = pd.DataFrame(display_rows, index=pd.Index(index, name="Model"))
-    display.columns = pd.MultiIndex.from_tuples(display.columns)
-    return display, pd.DataFrame(numeric_rows), [f"[{k + 1}] {n}" for k, n in enumerate(notes)]
+    """(display frame in the paper's Table 4 layout, numeric frame for CSV, footnotes); rows are video predictors
+    and simulator+renderer pairs."""
+    return image_metric_frame(records, DVC_COLUMNS, "predict_ms_per_frame", "predict ms/frame")
 
 
 def dvc_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:

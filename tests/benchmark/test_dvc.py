@@ -147,3 +147,37 @@ def test_bad_input_is_a_clear_error(tiny_root: Path, tmp_path: Path) -> None:
     reg = Registry.from_plugin_manager(make_plugin_manager([BadPredictors()]))
     with pytest.raises(ClodsError, match=r"video predictor 'wrongshape'.*expected \(1, 3, 24, 24, 3\)"):
         _run(tiny_root, tmp_path, registry=reg, predictor="wrongshape")
+
+
+def test_start_from_the_last_observed_frames(tiny_root: Path, tmp_path: Path) -> None:
+    """start=observed: frames 0..interp are the meshes stage 2 recovered, the rollout continues from the last two.
+    With the frozen simulator every later frame is the recovered mesh of frame interp; images recomputed here."""
+    import torch
+
+    fast = ["renderer_config.games.iterations=10", "renderer_config.games.gaussians_per_face=1",
+            "task_config.clods.iterations=2", "task_config.clods.min_iterations=2", "task_config.dvc.sim_training=video"]  # fmt: skip
+    rec, rdir, cfg = _run(tiny_root, tmp_path, *fast, "task_config.dvc.start=observed", sim="frozen", renderer="games")
+    assert rec["per_seed"]["0"]["extra"]["start"] == "observed"
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    cam = store.cameras()[2]
+    (renderer_file,) = (tmp_path / "runs" / "clods_cache").glob("stage1-*.pt")  # one fit: pipeline and DVC share it
+    renderer = torch.load(renderer_file, weights_only=False)
+    interp = cfg.data.interp_steps
+    future, every = [], []
+    for i in (0, 1):
+        (ext_file,) = (tmp_path / "runs" / "clods_cache").glob(f"*/traj_{i:04d}.npz")
+        with np.load(ext_file) as z:
+            recovered = z["world_pos"]
+        traj, video = store.load_trajectory(i), _unit(store.load_frames(i)[:, 2])
+        for t in range(1, 12):
+            mesh = recovered[min(t, interp)].copy()
+            mesh[traj.node_type != NORMAL] = traj.world_pos[t][traj.node_type != NORMAL]  # handles follow the truth
+            with torch.no_grad():
+                img = renderer.render(torch.from_numpy(mesh), [cam]).numpy()[0]
+            every.append(psnr(img, video[t]))
+            if t in FUTURE:
+                future.append(psnr(img, video[t]))
+    assert rec["metrics"]["psnr"]["mean"] == pytest.approx(np.mean(future), rel=1e-4)
+    assert rec["metrics"]["all/psnr"]["mean"] == pytest.approx(np.mean(every), rel=1e-4)
+    with pytest.raises(ClodsError, match="start=observed needs the meshes stage 2 recovered"):
+        _run(tiny_root, tmp_path / "mesh", "task_config.dvc.sim_training=mesh", "task_config.dvc.start=observed", sim="frozen", renderer="games")

@@ -28,15 +28,16 @@ def test_unknown_executor_is_a_clear_error() -> None:
         make_executor("local", jobs=0)
 
 
-def _threads_seen(asked: int) -> tuple[int, str | None, int]:
-    """(torch threads at start, the cap variable, threads inside a block that asks for `asked`) in a worker."""
+def _threads_seen(asked: int) -> tuple[int, str | None, int, int]:
+    """(torch threads at start, the cap variable, threads inside a block that asks for `asked`, numba threads) in a worker."""
     import os
 
+    import numba
     import torch
 
     with torch_threads(asked):
         inside = torch.get_num_threads()
-    return torch.get_num_threads(), os.environ.get(MAX_THREADS_ENV), inside
+    return torch.get_num_threads(), os.environ.get(MAX_THREADS_ENV), inside, numba.get_num_threads()
 
 
 def test_parallel_workers_share_the_cores() -> None:
@@ -44,7 +45,7 @@ def test_parallel_workers_share_the_cores() -> None:
 
     seen = LocalExecutor(jobs=2).map(_threads_seen, [8, 8, 1], progress=False)
     cap = max(1, (os.cpu_count() or 1) // 2)
-    assert seen == [(cap, str(cap), cap), (cap, str(cap), cap), (cap, str(cap), 1)]  # a config asking for 8 gets the cap
+    assert seen == [(cap, str(cap), cap, cap), (cap, str(cap), cap, cap), (cap, str(cap), 1, cap)]  # a config asking for 8 gets the cap
 
 
 def test_parallel_sweep_matches_sequential(tmp_path: Path, tiny_root: Path) -> None:

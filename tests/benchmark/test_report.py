@@ -100,3 +100,24 @@ def test_front_of_all_subsets_is_monotone() -> None:
         front = idx[pareto_front(err[idx], tim[idx])]
         order = front[np.argsort(tim[front])]
         assert np.all(np.diff(err[order]) < 0)
+
+
+def test_error_accumulation_of_clods_rows(tmp_path: Path) -> None:
+    """CloDS records carry E-GT / P-GT / P-E curves per seed: the report averages them (a diverged seed's NaN stays a gap)."""
+    runs = tmp_path / "runs"
+    c = [0.0, 0.0, 0.1, 0.2, 0.3, 0.4]
+    _record(runs, "constvel", "constvel", 0.30, 0.01, 0.0, [c])
+    _record(runs, "CloDS**", "mgn", 0.05, 5.0, 60.0, [c, c])
+    rdir = runs / "cdg" / "CloDS**" / "flag-ci-00000000"
+    acc = [{"E-GT": [0.0, 0.01, 0.02], "P-GT": [0.0, 0.02, 0.04], "P-E": [0.0, 0.015, 0.03]},
+           {"E-GT": [0.0, 0.03, 0.04], "P-GT": [0.0, 0.04, None], "P-E": [0.0, 0.025, 0.05]}]  # fmt: skip
+    for seed, curves in enumerate(acc):
+        write_json(rdir / f"seed_{seed}" / "result.json", {"seed": seed, "metrics": {}, "timings": {}, "curves": {"unviewed": c, "viewed": c}, "extra": {"accumulation": curves}})
+    paths = write_report(runs, tmp_path / "report")
+    assert {"error_accumulation_flag_ci.csv", "error_accumulation_flag_ci.png"} <= {p.name for p in paths}
+    got = pd.read_csv(tmp_path / "report" / "error_accumulation_flag_ci.csv")
+    assert set(got["label"]) == {"CloDS**"}  # the mesh-supervised row has no such curves
+    egt = got[got["curve"] == "E-GT"]["rmse"].to_numpy()
+    np.testing.assert_allclose(egt, [0.0, 0.02, 0.03])
+    pgt = got[got["curve"] == "P-GT"]["rmse"].to_numpy()
+    assert pgt[1] == pytest.approx(0.03) and np.isnan(pgt[2])

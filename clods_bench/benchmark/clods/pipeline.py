@@ -28,7 +28,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
-__all__ = ["Extraction", "PipelineResult", "extract_meshes", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
+__all__ = ["Extraction", "PipelineResult", "error_accumulation", "extract_meshes", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
 
 
 @dataclass
@@ -39,6 +39,8 @@ class PipelineResult:
     stats: dict[str, float]
     egt_curve: list[float] = field(default_factory=list)
     egt_per_trajectory: dict[str, float] = field(default_factory=dict)
+    meshes: list[Trajectory] = field(default_factory=list)  # the extracted meshes stage 3 learned from
+    truth: list[Trajectory] = field(default_factory=list)  # the true meshes of the same frames
 
 
 def video_train_ids(ctx: TaskContext) -> list[int]:
@@ -141,7 +143,23 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")
     stats["cost_seconds"] = float(sum(v for v in (stats.get(k, 0.0) for k in parts) if math.isfinite(v)))  # a cache without its cost counts 0
     per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, ext.egt)}
-    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj)
+    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj, ext.meshes, ext.truth)
+
+
+def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequence[Trajectory]) -> dict[str, list[float]]:
+    """The paper's appendix figure on error accumulation, on the training videos: per frame, the RMSE of the extracted
+    meshes against the truth (E-GT), of the simulator's rollout from the true first two frames against the truth
+    (P-GT) and against the extracted meshes (P-E), each averaged over the trajectories."""
+    from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
+
+    curves: dict[str, list[np.ndarray]] = {"E-GT": [], "P-GT": [], "P-E": []}
+    for ext, gt in zip(meshes, truth):
+        inp = RolloutInput.from_trajectory(gt, gt.num_steps)
+        pred = check_rollout(sim.rollout(inp), inp, "clods")
+        curves["E-GT"].append(rmse_per_step(ext.world_pos, gt.world_pos))
+        curves["P-GT"].append(rmse_per_step(pred, gt.world_pos))
+        curves["P-E"].append(rmse_per_step(pred, ext.world_pos))
+    return {k: np.mean(np.stack(v), axis=0).tolist() for k, v in curves.items() if v}
 
 
 def train_from_video(ctx: TaskContext, train_ids: Sequence[int]) -> tuple[Simulator, dict[str, float]]:

@@ -65,13 +65,17 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     clods_extra: dict[str, object] = {}
     t0 = time.perf_counter()
     if cfg.renderer:  # learned from video: the CloDS pipeline (stages 1-3) replaces mesh supervision
-        from clods_bench.benchmark.clods.pipeline import run_pipeline, video_train_ids
+        from clods_bench.benchmark.clods.pipeline import error_accumulation, run_pipeline, video_train_ids
 
         train_ids = video_train_ids(ctx)
         clods = run_pipeline(ctx, train_ids)
         sim, fit_stats = clods.simulator, clods.stats
-        clods_extra = {"egt_curve": clods.egt_curve, "egt_per_trajectory": clods.egt_per_trajectory}
         fit_wall = time.perf_counter() - t0
+        clods_extra = {
+            "egt_curve": clods.egt_curve,
+            "egt_per_trajectory": clods.egt_per_trajectory,
+            "accumulation": error_accumulation(sim, clods.meshes, clods.truth),  # E-GT, P-GT, P-E on the training videos
+        }
         fit_seconds = max(fit_wall, float(fit_stats.get("cost_seconds", 0.0)))
     else:
         sim = build_simulator(ctx)

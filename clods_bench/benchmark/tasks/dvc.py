@@ -59,6 +59,10 @@ class DvcConfig:
     """Simulator rows: train from the training videos with the CloDS pipeline ('video', needs
     clods_bench.benchmark.clods.pipeline), on the ground-truth meshes as CDG does ('mesh'), or
     'auto': video when the pipeline is installed, else mesh (the record says which ran)."""
+    start: Literal["initial", "observed"] = "initial"
+    """Simulator rows: roll out from the initial mesh (frames 0-1, Algorithm S2: the whole video is generated), or
+    'observed': from the meshes stage 2 recovered from the last two observed frames (interp_steps - 1, interp_steps),
+    the context the video predictors get (frames up to interp_steps are the recovered meshes, rendered)."""
     lpips: bool = True
     """Compute LPIPS when its weights are on this machine (never downloaded)."""
     grid_frames: int = 4
@@ -225,8 +229,9 @@ def _pipeline() -> Any:
     return pipeline
 
 
-def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, float], str]:
-    """The simulator for the rollouts: from the training videos (CloDS stages 1-3) or the ground-truth meshes."""
+def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, float], str, dict[int, np.ndarray]]:
+    """The simulator for the rollouts, from the training videos (CloDS stages 1-3) or the ground-truth meshes; with
+    the video-trained one also the meshes stage 2 recovered per training trajectory (frames 0..interp_steps)."""
     cfg = ctx.config
     splits = split_spec(ctx)
     train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
@@ -234,11 +239,17 @@ def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, 
     have_video = pipeline is not None and hasattr(pipeline, "train_from_video")
     mode = ("video" if have_video else "mesh") if opts.sim_training == "auto" else opts.sim_training
     t0 = time.perf_counter()
+    extracted: dict[int, np.ndarray] = {}
     if mode == "video":
         if not have_video:
             raise ClodsError("the CloDS pipeline (clods_bench.benchmark.clods.pipeline.train_from_video) is not available",
                              where=f"{WHERE}.sim_training", hint="set task_config.dvc.sim_training=mesh")  # fmt: skip
-        sim, stats = pipeline.train_from_video(ctx, train_ids)
+        if hasattr(pipeline, "run_pipeline"):
+            result = pipeline.run_pipeline(ctx, train_ids)
+            sim, stats = result.simulator, result.stats
+            extracted = {int(i): m.world_pos for i, m in zip(train_ids, result.meshes)}
+        else:
+            sim, stats = pipeline.train_from_video(ctx, train_ids)
     else:
         store = DatasetStore.open(cfg.data.dataset_dir())
         sim = build_simulator(ctx)
@@ -247,7 +258,24 @@ def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, 
     cost = max(wall, float(stats.get("cost_seconds", 0.0))) if mode == "video" else fit_cost_seconds(wall, stats)
     timings = {"sim_fit_seconds": cost, "sim_fit_wall_seconds": wall}
     timings.update({f"sim_fit/{k}": float(v) for k, v in (stats or {}).items() if isinstance(v, (int, float))})
-    return sim, timings, mode
+    return sim, timings, mode, extracted
+
+
+def _rollout_input(traj: Any, opts: DvcConfig, extracted: dict[int, np.ndarray], index: int, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
+    """The rollout input of one scored trajectory and, for start='observed', the recovered meshes of frames 0..interp."""
+    if opts.start == "initial":
+        return RolloutInput.from_trajectory(traj, splits.num_steps), None
+    known = extracted.get(int(index))
+    if known is None:
+        raise ClodsError(
+            f"start=observed needs the meshes stage 2 recovered from trajectory {index}'s video, and there are none",
+            where=f"{WHERE}.start", hint="use the video-trained simulator (sim_training=video, train_subset=all) or start=initial",
+        )  # fmt: skip
+    first = splits.interp_steps - 1  # the rollout's frames 0, 1 are the last two observed ones
+    kin = traj.world_pos[first : splits.num_steps].astype(np.float32).copy()
+    kin[:, traj.node_type == 0] = np.nan
+    inp = RolloutInput(traj.cells, traj.mesh_pos, traj.node_type, np.asarray(known[first : first + 2], np.float32), kin, traj.dt)
+    return inp, np.asarray(known[: splits.interp_steps + 1], np.float32)
 
 
 def _fit_renderer(ctx: TaskContext, trajs: list[Any], images: np.ndarray, train_cams: list["Camera"]) -> tuple[Any, dict[str, float]]:
@@ -275,7 +303,7 @@ def _run_simulator(
     splits = split_spec(ctx)
     train_views = list(splits.train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    sim, timings, mode = _train_simulator(ctx, opts)
+    sim, timings, mode, extracted = _train_simulator(ctx, opts)
     trajs = {i: store.load_trajectory(i) for i in traj_ids}
     t0 = time.perf_counter()
     renderer, render_stats = _fit_renderer(ctx, list(trajs.values()), np.stack([_float(store.load_frames(i)[0, train_views]) for i in traj_ids]), train_cams)
@@ -288,11 +316,13 @@ def _run_simulator(
         job = bar.add_task(f"dvc ({cfg.sim}+{cfg.renderer})", total=len(traj_ids) * (splits.num_steps - 1))
         for i, traj in trajs.items():
             clip = _float(store.load_frames(i))  # (T,V,H,W,3)
-            inp = RolloutInput.from_trajectory(traj, splits.num_steps)
+            inp, observed = _rollout_input(traj, opts, extracted, i, splits)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
             rollout_s += time.perf_counter() - t0
             steps += inp.num_frames - 2
+            if observed is not None:  # frames 0..interp: the recovered meshes; the rollout continues from the last two
+                mesh = np.concatenate([observed, mesh[2:]])
             bad = divergence_step(mesh)
             if bad is not None:  # a blown-up rollout is data: the last finite mesh stands in for the rest, and it is recorded
                 diverged[str(i)] = bad
@@ -320,7 +350,7 @@ def _run_simulator(
             "predict_ms_per_frame": 1000.0 * (rollout_s / max(steps, 1) / len(view_cams) + render_s / max(rendered, 1)),
         }
     )
-    return videos, timings, {"diverged": diverged, "sim_training": mode}
+    return videos, timings, {"diverged": diverged, "sim_training": mode, "start": opts.start}
 
 
 def _upscale(img: np.ndarray, min_side: int = 128) -> np.ndarray:
