@@ -58,6 +58,9 @@ class ToleranceRule:
     """Pattern of the row label (the 'method' column), e.g. 'MGN*'."""
     column: str = "*"
     """Pattern of the column name, e.g. '*/std'."""
+    skip: bool = False
+    """Do not compare the matched cells at all (e.g. a learned rollout's divergence frame and reason, which a
+    different float rounding can move or remove); every use must say why."""
     why: str = ""
     """One line: what this rule covers and why its numbers."""
 
@@ -79,12 +82,12 @@ class ToleranceSpec:
     """Why these numbers: the measured seed-to-seed variation (`clods-bench seed-spread`)."""
 
     def for_cell(self, table: str, row: str, column: str) -> Tolerance | None:
-        """The tolerance of one cell, or None when its column is excluded."""
+        """The tolerance of one cell, or None when its column is excluded or its first matching rule skips it."""
         if any(fnmatch.fnmatchcase(column, p) for p in self.exclude):
             return None
         for rule in self.rules:
             if rule.matches(table, row, column):
-                return Tolerance(rel=rule.rel, abs=rule.abs)
+                return None if rule.skip else Tolerance(rel=rule.rel, abs=rule.abs)
         return self.default
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -206,6 +207,14 @@ def _divergence_cell(rec: dict[str, Any]) -> tuple[str, float, str]:
     return f"frame {frame} ({len(failed)}/{rollouts} rollouts): {reason}", float(frame), reason
 
 
+def failure_kind(reason: str) -> str:
+    """The kind of a divergence reason without its measured values: 'edge strain 0.523 > 0.5' -> 'edge strain',
+    'exception: FloatingPointError: overflow ...' -> 'exception: FloatingPointError' (CSV cells compared as text)."""
+    if reason.startswith("exception:"):
+        return ":".join(reason.split(":")[:2]).strip()
+    return re.split(r"\s+[-+]?\d", reason, maxsplit=1)[0].strip()
+
+
 def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(display frame, numeric frame): per simulator and scene, long-rollout RMSE, max edge strain, divergence or 'stable'."""
     display_rows, numeric_rows, index = [], [], []
@@ -244,7 +253,7 @@ def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.Dat
                 "gt_max_strain": get("gt_max_strain")[0],
                 "diverged_fraction": get("diverged_fraction")[0],
                 "first_divergence": first,
-                "reason": reason,
+                "reason": failure_kind(reason),
                 "infer_ms_per_step": get("infer_ms_per_step", t)[0],
                 "fit_seconds": get("fit_seconds", t)[0],
             }

@@ -74,7 +74,9 @@ def render_trajectory(
 def scene_fingerprint(scene: SceneSpec) -> str:
     """Hash of everything a scene defines (physics, ranges, warm-up): a dataset made from an edited scene
     definition is reported as made with a different config instead of being reused."""
-    fields = dataclasses.asdict(scene) if dataclasses.is_dataclass(scene) else repr(scene)
+    fields: object = repr(scene)
+    if dataclasses.is_dataclass(scene):
+        fields = {k: v for k, v in dataclasses.asdict(scene).items() if k != "description"}  # prose changes no data
     return hashlib.sha256(json.dumps(fields, sort_keys=True, default=repr).encode()).hexdigest()[:16]
 
 

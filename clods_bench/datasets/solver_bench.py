@@ -36,5 +36,6 @@ def bench_solver(num_steps: int = 400, resolution: Resolution = "flagsimple", se
         "seconds_per_step": total / max(num_steps, 1),
         "steps_per_second": num_steps / total if total > 0 else float("inf"),
         "cg_iterations_per_step": solver.stats["cg_iterations"] / max(num_steps, 1),
+        "realtime_factor": num_steps * scene.dt / total if total > 0 else float("inf"),  # simulated seconds per wall second
         "finite": bool(np.isfinite(x).all()),
     }

@@ -121,3 +121,24 @@ def test_committed_tolerance_file_loads_and_excludes_timings() -> None:
     assert spec.for_cell("table3_nvs.csv", "SMGS", "fit_seconds") is None
     assert spec.for_cell("table2_cdg.csv", "Frozen", "viewed/interp/d_avg/mean") == spec.default
     assert spec.for_cell("table2_cdg.csv", "BSMS", "viewed/interp/d_avg/mean").rel > spec.default.rel
+
+
+def test_a_skip_rule_leaves_its_cells_out(tmp_path: Path) -> None:
+    committed = _tables(tmp_path / "c")
+    fresh = _tables(tmp_path / "f")
+    tol = TOL.replace("rules:\n", 'rules:\n  - {table: t.csv, row: A, column: "viewed/*", skip: true, why: test}\n')
+    (committed / "tolerance.yaml").write_text(tol)
+    frame = pd.read_csv(fresh / "t.csv")
+    frame.loc[0, "viewed/interp/d_avg/mean"] = 9.0  # row A: skipped
+    frame.loc[1, "viewed/interp/d_avg/std"] = 1.0  # row B: NaN -> 1.0 is still caught
+    frame.to_csv(fresh / "t.csv", index=False)
+    assert compare_dirs(committed, fresh) == ["t.csv: B: viewed/interp/d_avg/std: nan -> 1 (moved nan, allowed 0)"]
+
+
+def test_failure_kind_drops_the_measured_values() -> None:
+    from clods_bench.benchmark.tables import failure_kind
+
+    assert failure_kind("edge strain 0.523 > 0.5") == "edge strain"
+    assert failure_kind("kinetic energy 1.2e+03 J > 10 J") == "kinetic energy"
+    assert failure_kind("non-finite positions (NaN/Inf)") == "non-finite positions (NaN/Inf)"
+    assert failure_kind("exception: FloatingPointError: overflow in step 3") == "exception: FloatingPointError"

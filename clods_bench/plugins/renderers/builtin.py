@@ -46,7 +46,7 @@ def clods_bench_renderers() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="gs3d",
-            description="Per-frame 3D Gaussian splatting fitted on every frame independently: the NVS upper bound.",
+            description="Per-frame 3D Gaussian splatting fitted on every frame independently (free geometry; no temporal or mesh prior).",
             build=_build_gs3d,
             config_cls=Gs3dConfig,
         ),

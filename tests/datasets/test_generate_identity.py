@@ -1,0 +1,26 @@
+"""Dataset identity: a changed scene definition or generator is never mistaken for the data already on disk."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from clods_bench.benchmark.config import DATA_GENERATOR_VERSION, DataConfig
+from clods_bench.datasets.generate import generate, scene_fingerprint
+from clods_bench.datasets.scenes import get_scene
+from clods_bench.errors import ClodsError
+
+
+def test_edited_scene_is_a_clear_error_and_prose_is_not(tmp_path: Path) -> None:
+    d = DataConfig(resolution=[4, 3], num_train=2, num_test=1, num_steps=4, interp_steps=2, render_frames=False, root=str(tmp_path))
+    flag = get_scene("flag")
+    generate(d, flag, progress=False)
+    assert d.identity()["generator_version"] == DATA_GENERATOR_VERSION
+    reworded = dataclasses.replace(flag, description="the same flag, described differently")
+    assert scene_fingerprint(reworded) == scene_fingerprint(flag)
+    generate(d, reworded, progress=False)  # same data: resumes (nothing to do)
+    windier = dataclasses.replace(flag, wind_speed_range=(9.0, 9.0))
+    with pytest.raises(ClodsError, match="different config: .*scene_spec"):
+        generate(d, windier, progress=False)
