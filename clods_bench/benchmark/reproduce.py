@@ -203,20 +203,12 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
     """(display, numeric, footnote) in the layout of `task`; tasks without a dedicated layout get `generic_frame`."""
     from clods_bench.benchmark import tables
 
-    if task == "cdg":
-        display, numeric = tables.cdg_frame(records)
+    if task in ("cdg", "stability"):
+        display, numeric = (tables.cdg_frame if task == "cdg" else tables.stability_frame)(records)
         return display, numeric, ""
-    if task == "nvs":
-        display, numeric, notes = tables.nvs_frame(records)
-        return display, numeric, "; ".join(notes)
-    if task == "stability":
-        display, numeric = tables.stability_frame(records)
-        return display, numeric, ""
-    if task == "extract":
-        display, numeric, notes = tables.extract_frame(records)
-        return display, numeric, "; ".join(notes)
-    if task == "dvc" and hasattr(tables, "dvc_frame"):
-        display, numeric, notes = tables.dvc_frame(records)
+    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame}
+    if task in layouts:
+        display, numeric, notes = layouts[task](records)
         return display, numeric, "; ".join(notes)
     display, numeric = generic_frame(records)
     return display, numeric, ""

@@ -124,14 +124,15 @@ def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
     return image_metric_frame(records, NVS_COLUMNS, "render_ms_per_frame", "render ms/frame")
 
 
+def _image_caption(what: str, scored: str, per_image: str, scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
+    seeds = sorted({len(r["seeds"]) for r in records})
+    text = f"{what} ({scene}, preset {preset}); {scored}; mean ± std over {'/'.join(map(str, seeds))} seeds; {per_image} ms per image (one view, one frame)."
+    return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
+
+
 def nvs_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """Caption of the NVS table: what is scored, over how many seeds, and the footnotes."""
-    seeds = sorted({len(r["seeds"]) for r in records})
-    text = (
-        f"Dynamic-scene novel-view synthesis ({scene}, preset {preset}); held-out cameras; mean ± std over "
-        f"{'/'.join(map(str, seeds))} seeds; render ms per image (one view, one frame)."
-    )
-    return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
+    return _image_caption("Dynamic-scene novel-view synthesis", "held-out cameras", "render", scene, preset, records, notes)
 
 
 DVC_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 4 reports SSIM x10, LPIPS x100, RMSE x100
@@ -150,12 +151,7 @@ def dvc_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
 
 def dvc_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """Caption of the DVC table: what is scored, over how many seeds, and the footnotes."""
-    seeds = sorted({len(r["seeds"]) for r in records})
-    text = (
-        f"DVC forward / cloth video prediction ({scene}, preset {preset}); extrapolation frames of the scored views; "
-        f"mean ± std over {'/'.join(map(str, seeds))} seeds; predict ms per image (one view, one frame)."
-    )
-    return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
+    return _image_caption("DVC forward / cloth video prediction", "extrapolation frames of the scored views", "predict", scene, preset, records, notes)
 
 
 EXTRACT_COLUMNS = (  # (metric key, column): E-GT in metres (RMSE of extracted vs true mesh, frames after the first)
