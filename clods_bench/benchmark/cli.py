@@ -248,7 +248,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.reproduce import build_configs, load_plan, reproduce, run_name
+    from clods_bench.benchmark.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
 
     out = args.out or Path("results") / args.preset
     if args.check is not None and out.resolve() == args.check.resolve():
@@ -265,7 +265,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             table.add_column(col)
         for run, cfg in runs:
             plugins = "+".join(p for p in (cfg.sim, cfg.renderer, getattr(cfg, "predictor", None)) if p)
-            table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run.overrides))
+            table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run_overrides(run)))
         console.print(table)
         return 0
     manifest = reproduce(args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs)

@@ -205,11 +205,11 @@ def run_configs(
     Datasets are generated first, here, once per distinct data config (workers must not race on them).
     Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run.
     """
-    from clods_bench.benchmark.runner import check_plugins, run_task
+    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task
 
-    configs = [(name, absolute_paths(cfg)) for name, cfg in configs]
     for name, cfg in configs:
         check_plugins(cfg, registry)
+    configs = [(name, resolve_plugin_configs(absolute_paths(cfg), registry)) for name, cfg in configs]
     seen: set[Path] = set()
     for name, cfg in configs:
         ddir = cfg.data.dataset_dir()

@@ -55,7 +55,7 @@ class PlanRun:
     task: str
     """Task name (must be registered)."""
     label: str
-    """Row label (unique within its table; also names the record directory)."""
+    """Row label (unique within its table and scene; also names the record directory)."""
     sim: str | None = None
     """Simulator plugin."""
     renderer: str | None = None
@@ -64,6 +64,9 @@ class PlanRun:
     """Video predictor (tasks that take one, e.g. dvc)."""
     train_subset: str | None = None
     """'all' or 'first_half' (MGN*)."""
+    scene: str | None = None
+    """Scene of this row (`data.scene`, applied before the row's overrides); default: the preset's. Rows of one
+    table may share a label when their scenes differ (the stability table: one row per simulator and scene)."""
     overrides: list[str] = field(default_factory=list)
     """`--set` style overrides, e.g. renderer_config.smgs.gaussians_per_face=10."""
 
@@ -112,8 +115,13 @@ def plan_digest(path: Path) -> str:
 
 
 def run_name(run: PlanRun) -> str:
-    """A stable id of a plan row: '<table>/<label>'."""
-    return f"{run.table}/{run.label}"
+    """A stable id of a plan row: '<table>/<label>', with '@<scene>' when the row names its scene."""
+    return f"{run.table}/{run.label}" + (f"@{run.scene}" if run.scene else "")
+
+
+def run_overrides(run: PlanRun) -> list[str]:
+    """The row's own overrides, its scene first."""
+    return ([f"data.scene={run.scene}"] if run.scene else []) + list(run.overrides)
 
 
 def config_identity(cfg: RunConfig) -> str:
@@ -128,11 +136,11 @@ def build_configs(
     plan: ReproducePlan, preset: str, registry: Any, extra_overrides: Sequence[str] = (), config_file: Path | None = None
 ) -> list[tuple[PlanRun, RunConfig]]:
     """Resolve every run's config and check it against the registry; raise one ClodsError listing every problem."""
-    from clods_bench.benchmark.runner import check_plugins
+    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs
 
     problems: list[str] = []
     tables = {t.id: t for t in plan.tables}
-    labels: dict[str, set[str]] = {}
+    labels: dict[str, set[tuple[str, str]]] = {}  # (label, scene) per table
     out: list[tuple[PlanRun, RunConfig]] = []
     for i, run in enumerate(plan.runs):
         where = f"runs[{i}] ({run_name(run)})"
@@ -142,9 +150,10 @@ def build_configs(
             continue
         if table.task != run.task:
             problems.append(f"{where}: task '{run.task}' but table '{run.table}' holds '{table.task}' rows")
-        if run.label in labels.setdefault(run.table, set()):
-            problems.append(f"{where}: label '{run.label}' appears twice in table '{run.table}'")
-        labels[run.table].add(run.label)
+        scene = run.scene or "the preset's scene"
+        if (run.label, scene) in labels.setdefault(run.table, set()):
+            problems.append(f"{where}: label '{run.label}' appears twice in table '{run.table}' ({scene})")
+        labels[run.table].add((run.label, scene))
         if run.task not in registry.names("task"):
             problems.append(f"{where}: task '{run.task}' is not registered (registered: {', '.join(registry.names('task'))})")
             continue
@@ -154,8 +163,9 @@ def build_configs(
         if plan.seeds is not None:
             fields["seeds"] = plan.seeds
         try:
-            cfg = load_config(preset, config_file, [*plan.overrides, *table.overrides, *run.overrides, *extra_overrides], **fields)
+            cfg = load_config(preset, config_file, [*plan.overrides, *table.overrides, *run_overrides(run), *extra_overrides], **fields)
             check_plugins(cfg, registry)
+            cfg = resolve_plugin_configs(cfg, registry)  # rows that differ only in a plugin default are one run
         except ClodsError as exc:
             problems.append(f"{where}: {exc.message}")
             continue

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from rich.console import Console
 
@@ -39,6 +40,34 @@ def check_plugins(cfg: RunConfig, registry: Registry) -> None:
         spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
 
 
+def _plain(value: Any) -> Any:
+    """Tuples to lists, recursively: what YAML and JSON give back, so a resolved config reloads to itself."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+def resolve_plugin_configs(cfg: RunConfig, registry: Registry) -> RunConfig:
+    """`cfg` with the complete options of every plugin it uses (its config dataclass, defaults filled in).
+
+    What a run saves (config.yaml) and what names its record directory then includes the plugins' defaults:
+    a changed default gives a new record instead of silently reusing one made with the old value.
+    Idempotent; plugins the run does not use keep their mappings as they are.
+    """
+    used = (("simulator", cfg.sim, "sim_config"), ("renderer", cfg.renderer, "renderer_config"), ("video_predictor", cfg.predictor, "video_config"))
+    changes: dict[str, dict[str, dict[str, Any]]] = {}
+    for kind, name, field_name in used:
+        if not name:
+            continue
+        mapping = dict(getattr(cfg, field_name))
+        plugin_cfg = registry.get(kind, name).make_config(mapping.get(name, {}), where=f"{field_name}.{name}")
+        mapping[name] = _plain(dataclasses.asdict(plugin_cfg))
+        changes[field_name] = mapping
+    return dataclasses.replace(cfg, **changes) if changes else cfg
+
+
 def run_task(
     cfg: RunConfig,
     registry: Registry,
@@ -48,6 +77,7 @@ def run_task(
     """Run every seed of `cfg.task` not already finished; return the record directory."""
     console = console or Console(stderr=True)
     check_plugins(cfg, registry)
+    cfg = resolve_plugin_configs(cfg, registry)
     task = registry.get("task", cfg.task)
     rdir = record_dir(cfg)
     rdir.mkdir(parents=True, exist_ok=True)

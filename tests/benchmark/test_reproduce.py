@@ -165,3 +165,27 @@ def test_override_order_plan_then_table_then_run_then_command_line(tmp_path: Pat
     assert (a.data.num_train, a.data.num_test, a.data.interp_steps) == (6, 3, 25)
     assert (b.data.num_train, b.data.num_test, b.data.interp_steps) == (6, 4, 25)
     assert a.label == "a" and a.seeds == [0, 1]  # the ci preset's seeds
+
+
+def test_a_label_may_repeat_across_scenes_and_each_scene_gets_its_row(tmp_path: Path, tiny_root: Path) -> None:
+    """The stability table's layout: one row per (simulator, scene); a row's `scene:` picks its dataset."""
+    text = (
+        "version: 1\ntables:\n  - {id: stab, task: stability, title: S, overrides: [task_config.stability.horizon_factor=1.5]}\n"
+        "runs:\n  - {table: stab, task: stability, label: Const. velocity, sim: constvel}\n"
+        "  - {table: stab, task: stability, label: Const. velocity, sim: constvel, scene: flag-stiff, overrides: [data.render_frames=false]}\n"
+    )
+    out = tmp_path / "out"
+    manifest = reproduce("ci", out, default_registry(), Console(quiet=True), plan_path=_plan(tmp_path, text), overrides=_overrides(tiny_root, tmp_path / "runs"))
+    assert [r["same_as"] for r in manifest["runs"]] == [None, None]  # two scenes: two runs, not one run twice
+    table = pd.read_csv(out / "stab.csv").set_index(["method", "scene"])
+    assert sorted(table.index) == [("Const. velocity", "flag"), ("Const. velocity", "flag-stiff")]
+    # different data: the stiff flag moves differently, so the same baseline scores differently on it
+    assert table.loc[("Const. velocity", "flag"), "rmse/mean"] != table.loc[("Const. velocity", "flag-stiff"), "rmse/mean"]
+    stiff_dir = Path(manifest["runs"][1]["record_dir"])
+    assert "flag-stiff" in stiff_dir.name
+    rec = json.loads((stiff_dir / RECORD_FILE).read_text())
+    assert rec["scene"] == "flag-stiff"
+
+    twice = text + "  - {table: stab, task: stability, label: Const. velocity, sim: frozen, scene: flag-stiff}\n"
+    with pytest.raises(ClodsError, match=r"label 'Const. velocity' appears twice in table 'stab' \(flag-stiff\)"):
+        build_configs(load_plan(_plan(tmp_path, twice)), "ci", default_registry(), _overrides(tiny_root, tmp_path / "runs"))

@@ -2,8 +2,9 @@
 
 The upper-bound row of the NVS table ("3DGS, trained separately per frame"). Free means, rotations
 (quaternions), log scales, opacity logits and colours, no densification (a fixed budget of
-`num_gaussians`), initialised on the frame's surface (points sampled on the given mesh faces,
-flat and oriented like the face) or uniformly in the mesh's bounding box ('random').
+`num_gaussians`), initialised on the frame's visible surface (points sampled on the mesh faces that
+some training camera sees, flat and oriented like the face: 'visible'), on every face ('surface') or
+uniformly in the mesh's bounding box ('random').
 
 Per-frame API: `fit(verts (B,V,3), ..., images (B,N,H,W,3), cameras)` fits B independent
 representations, one per frame, and caches each under its mesh; `render(verts, cameras)` renders
@@ -40,8 +41,9 @@ class Gs3dConfig:
 
     num_gaussians: int = 2000
     """Gaussians per frame (fixed: no densification or pruning)."""
-    init: Literal["surface", "random"] = "surface"
-    """'surface': on the frame's mesh faces (area-weighted), flat and face-aligned; 'random': uniform in its bounding box."""
+    init: Literal["visible", "surface", "random"] = "visible"
+    """'visible': on the frame's mesh faces seen by a training camera (area-weighted), flat and face-aligned;
+    'surface': the same on every face; 'random': uniform in the mesh's bounding box."""
     iterations: int = 250
     """Adam steps per frame (each renders every training camera)."""
     sh_degree: int = 0
@@ -77,8 +79,8 @@ class Gs3dConfig:
         """Raise ClodsError naming the first field that is out of range."""
         if self.num_gaussians < 1:
             raise ClodsError(f"must be >= 1, got {self.num_gaussians}", where=f"{where}.num_gaussians")
-        if self.init not in ("surface", "random"):
-            raise ClodsError(f"unknown init '{self.init}'; known: surface, random", where=f"{where}.init")
+        if self.init not in ("visible", "surface", "random"):
+            raise ClodsError(f"unknown init '{self.init}'; known: visible, surface, random", where=f"{where}.init")
         if self.iterations < 0:
             raise ClodsError(f"must be >= 0, got {self.iterations}", where=f"{where}.iterations")
         if not 0 <= self.sh_degree <= 3:
@@ -113,10 +115,50 @@ def rotmat_to_quat(R: Tensor) -> Tensor:
     return (q * torch.where(q[:, :1] < 0, -1.0, 1.0)).reshape(R.shape[:-2] + (4,))
 
 
-def surface_init(verts: np.ndarray, cells: np.ndarray, n: int, gen: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
-    """Means, quaternions and log scales of n flat Gaussians sampled area-weighted on the faces, aligned with them."""
+def _barycentric_grid(level: int) -> np.ndarray:
+    """(P,3) barycentric points of a triangle subdivided `level` times per edge (vertices, edge and inner points)."""
+    return np.array([(i, j, level - i - j) for i in range(level + 1) for j in range(level + 1 - i)], np.float64) / level
+
+
+def visible_faces(verts: np.ndarray, cells: np.ndarray, cameras: Sequence[Camera], level: int = 4) -> np.ndarray:
+    """(F,) bool: faces of which some point is seen by some camera (a point z-buffer, not a rasterizer).
+
+    Every face is sampled on a barycentric grid; each camera keeps, per pixel, the nearest sample depth
+    (min-filtered over 3x3 pixels so that gaps between samples do not let hidden points through); a
+    sample is visible when it is in front of the camera, inside the image and within three pixel
+    footprints of that nearest depth.
+    """
+    from scipy.ndimage import minimum_filter
+
+    pts = np.einsum("pc,fcx->fpx", _barycentric_grid(level), verts[cells]).reshape(-1, 3)
+    per_face = len(_barycentric_grid(level))
+    seen = np.zeros(len(pts), bool)
+    for cam in cameras:
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            col, row = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+            inside = (z > 1e-6) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+        if not inside.any():
+            continue
+        pix = row[inside].astype(np.int64) * cam.width + col[inside].astype(np.int64)
+        zbuf = np.full(cam.width * cam.height, np.inf)
+        np.minimum.at(zbuf, pix, z[inside])
+        near = minimum_filter(zbuf.reshape(cam.height, cam.width), size=3, mode="constant", cval=np.inf).reshape(-1)
+        footprint = z[inside] / float(cam.K[0, 0])  # one pixel's width in world units at that depth
+        idx = np.flatnonzero(inside)
+        seen[idx] |= z[inside] <= near[pix] + 3.0 * footprint
+    return seen.reshape(len(cells), per_face).any(axis=1)
+
+
+def surface_init(
+    verts: np.ndarray, cells: np.ndarray, n: int, gen: torch.Generator, faces: np.ndarray | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Means, quaternions and log scales of n flat Gaussians sampled area-weighted on the faces (only those where
+    `faces` is True, when given and not empty), aligned with them."""
     tri = torch.from_numpy(verts[cells])  # (F,3,3) float64
     area = 0.5 * torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=-1).norm(dim=-1)
+    if faces is not None and bool(np.any(faces)):
+        area = area * torch.from_numpy(np.asarray(faces, bool))
     weights = area if float(area.sum()) > 0 else torch.ones_like(area)
     face = torch.multinomial(weights, n, replacement=True, generator=gen)
     r1, r2 = torch.rand(n, generator=gen, dtype=torch.float64), torch.rand(n, generator=gen, dtype=torch.float64)
@@ -166,8 +208,9 @@ class Gs3dRenderer:
         for b in range(data.verts.shape[0]):
             gen = torch.Generator().manual_seed(self.seed * 100003 + len(self.frames))
             v = data.verts[b]
-            if cfg.init == "surface":
-                means, quats, log_scales = surface_init(v, data.cells, cfg.num_gaussians, gen)
+            if cfg.init in ("visible", "surface"):
+                faces = visible_faces(v, data.cells, cams) if cfg.init == "visible" else None
+                means, quats, log_scales = surface_init(v, data.cells, cfg.num_gaussians, gen, faces)
             else:
                 means, quats, log_scales = random_init(v, cfg.num_gaussians, cfg.box_padding, gen)
             p = {

@@ -10,10 +10,11 @@ import torch
 
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.games import GamesConfig
-from clods_bench.plugins.renderers.gs3d import Gs3dConfig, Gs3dRenderer, random_init, rotmat_to_quat, surface_init
+from clods_bench.datasets.cameras import Camera, intrinsics_from_fov, look_at
+from clods_bench.plugins.renderers.gs3d import Gs3dConfig, Gs3dRenderer, random_init, rotmat_to_quat, surface_init, visible_faces
 from clods_bench.plugins.splatting.projection import quat_to_rotmat
 
-from .conftest import rig
+from .conftest import grid_mesh, rig
 from .test_games import fitted, randomise
 
 
@@ -74,7 +75,43 @@ def test_random_init_fills_the_padded_box():
     assert torch.allclose(log_scales, log_scales[0, 0])  # isotropic, all equal
 
 
-@pytest.mark.parametrize("init", ["surface", "random"])
+def _two_sheets() -> tuple[np.ndarray, np.ndarray]:
+    """Two parallel 8x8-quad sheets of 1 m x 1 m facing +y/-y: the near one at y = -0.3, the far one at y = +0.3."""
+    verts, cells, _ = grid_mesh(8, 8, size=(1.0, 1.0), wave=0.0)  # in the x-z plane at y = 0
+    near, far = verts + [0.0, -0.3, 0.0], verts + [0.0, 0.3, 0.0]
+    return np.concatenate([near, far]), np.concatenate([cells, cells + len(verts)])
+
+
+def _camera_on_y(y: float, size: int = 48) -> Camera:
+    R, t = look_at(np.array([0.0, y, 0.0]), np.zeros(3))
+    return Camera(intrinsics_from_fov(40.0, size, size), R, t, size, size)
+
+
+def test_visible_faces_are_the_ones_no_nearer_sheet_hides():
+    verts, cells = _two_sheets()
+    half = len(cells) // 2
+    from_front = visible_faces(verts, cells, [_camera_on_y(-3.0)])  # looks along +y: the near sheet hides the far one
+    assert from_front[:half].all() and not from_front[half:].any()
+    from_back = visible_faces(verts, cells, [_camera_on_y(3.0)])
+    assert from_back[half:].all() and not from_back[:half].any()
+    assert visible_faces(verts, cells, [_camera_on_y(-3.0), _camera_on_y(3.0)]).all()  # one camera each side: all
+    shifted = verts + [5.0, 0.0, 0.0]  # out of the camera's field of view: nothing is visible
+    assert not visible_faces(shifted, cells, [_camera_on_y(-3.0)]).any()
+
+
+def test_visible_init_puts_every_gaussian_on_the_seen_sheet():
+    verts, cells = _two_sheets()
+    faces = visible_faces(verts, cells, [_camera_on_y(-3.0)])
+    means, _, _ = surface_init(verts, cells, 2000, torch.Generator().manual_seed(0), faces)
+    np.testing.assert_allclose(means[:, 1].numpy(), -0.3, atol=1e-6)  # all on the near sheet
+    everywhere, _, _ = surface_init(verts, cells, 2000, torch.Generator().manual_seed(0))
+    assert abs(float((everywhere[:, 1] > 0).float().mean()) - 0.5) < 0.05  # without the mask: half on each sheet
+    nothing = np.zeros(len(cells), bool)  # no face seen: falls back to every face rather than failing
+    fallback, _, _ = surface_init(verts, cells, 2000, torch.Generator().manual_seed(0), nothing)
+    torch.testing.assert_close(fallback, everywhere)
+
+
+@pytest.mark.parametrize("init", ["visible", "surface", "random"])
 def test_fit_raises_training_psnr_well_above_the_init(mesh, init):
     cams = rig(2, 20)
     target = _teacher_images(mesh, cams)
