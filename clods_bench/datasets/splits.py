@@ -5,7 +5,10 @@ Index conventions, stated once (0-based, as stored in a DatasetStore):
 - trajectories num_train..num_train+num_test-1 are test trajectories (paper: the 20 after them);
 - frame 0 is the initial state; frames 1..interp_steps are interpolation, frames
   interp_steps+1..num_steps-1 extrapolation (paper: 300 training steps, then 100 to predict);
-- cameras 0..num_views_train-1 are used for fitting, the next num_views_test are held out.
+- of the num_views_train + num_views_test cameras of the rig, the num_views_test held-out ones are spread
+  evenly through it (every N/k-th, ending on the last: 30 cameras, 5 held out -> 5, 11, 17, 23, 29), as
+  novel-view benchmarks hold out every k-th view; the others are used for fitting. A held-out camera thus
+  has training neighbours on both sides instead of lying in an arc that no training camera sees.
 """
 
 from __future__ import annotations
@@ -13,6 +16,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from clods_bench.errors import ClodsError
+
+def spread(n: int, k: int) -> list[int]:
+    """k of the positions 0..n-1 spread evenly, every n/k-th, ending on the last (spread(6, 2) == [2, 5])."""
+    if not 0 <= k <= n:
+        raise ClodsError(f"cannot pick {k} of {n}", where="splits.spread")
+    return [round((i + 1) * n / k) - 1 for i in range(k)]
+
 
 TRAIN = "train"
 TEST = "test"
@@ -32,9 +42,9 @@ class SplitSpec:
     interp_steps: int = 300
     """Last interpolation frame: frames 1..interp_steps are interpolation, the rest extrapolation (paper: 300)."""
     num_views_train: int = 25
-    """Cameras whose images may be used for fitting (the first ones of the rig)."""
+    """Cameras whose images may be used for fitting (the rig's cameras that are not held out)."""
     num_views_test: int = 5
-    """Held-out cameras for novel-view synthesis (the last ones of the rig), never used for fitting."""
+    """Held-out cameras for novel-view synthesis (spread evenly through the rig), never used for fitting."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -130,14 +140,15 @@ class SplitSpec:
     # ----------------------------------------------------------------- cameras
 
     @property
-    def train_views(self) -> range:
-        """Camera indices used for fitting."""
-        return range(0, self.num_views_train)
+    def train_views(self) -> tuple[int, ...]:
+        """Camera indices used for fitting: every camera of the rig that is not held out, in rig order."""
+        held = set(self.test_views)
+        return tuple(v for v in range(self.num_views_train + self.num_views_test) if v not in held)
 
     @property
-    def test_views(self) -> range:
-        """Held-out camera indices for novel-view synthesis."""
-        return range(self.num_views_train, self.num_views_train + self.num_views_test)
+    def test_views(self) -> tuple[int, ...]:
+        """Held-out camera indices for novel-view synthesis, spread evenly through the rig."""
+        return tuple(spread(self.num_views_train + self.num_views_test, self.num_views_test))
 
     # ----------------------------------------------------------------- scaling
 

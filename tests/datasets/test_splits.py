@@ -1,8 +1,9 @@
 """The paper's split protocol (appendix 'Dataset details') and its scaling."""
 
+import numpy as np
 import pytest
 
-from clods_bench.datasets.splits import SplitSpec
+from clods_bench.datasets.splits import SplitSpec, spread
 from clods_bench.errors import ClodsError
 
 
@@ -16,7 +17,8 @@ def test_paper_numbers():
     assert list(s.interp_frames) == list(range(1, 301))
     assert list(s.extrap_frames) == list(range(301, 400))
     assert list(s.train_frames) == list(range(301))
-    assert list(s.train_views) == list(range(25)) and list(s.test_views) == list(range(25, 30))
+    assert list(s.test_views) == [5, 11, 17, 23, 29]  # every 6th camera of the 30-camera ring
+    assert list(s.train_views) == [v for v in range(30) if v % 6 != 5]
     subsets = s.train_mesh_subsets()
     assert list(subsets["MGN"]) == list(range(100)) and list(subsets["MGN*"]) == list(range(50))
     assert s.split_of(99) == "train" and s.split_of(100) == "test"
@@ -71,3 +73,25 @@ def test_from_data_config():
     s = SplitSpec.from_data_config(D())
     assert (s.num_views_train, s.num_views_test) == (4, 2)
     assert list(s.extrap_frames) == list(range(31, 41))
+
+
+@pytest.mark.parametrize("cams,held", [(6, 2), (30, 5), (8, 1), (7, 3), (5, 0), (10, 10)])
+def test_held_out_cameras_are_spread_evenly_and_disjoint_from_training(cams: int, held: int):
+    s = SplitSpec(num_train=4, num_test=2, num_steps=10, interp_steps=6, num_views_train=cams - held, num_views_test=held) if held < cams else None
+    if s is None:  # every camera held out leaves none to fit on
+        with pytest.raises(ClodsError, match="num_views_train"):
+            SplitSpec(num_train=4, num_test=2, num_steps=10, interp_steps=6, num_views_train=0, num_views_test=held)
+        return
+    test, train = list(s.test_views), list(s.train_views)
+    assert sorted(test + train) == list(range(cams)) and not set(test) & set(train)
+    assert train == sorted(train) and len(test) == held
+    if held:
+        assert test[-1] == cams - 1  # ends on the last camera
+        gaps = np.diff([-1, *test])  # cameras from one held-out view to the next: as equal as integers allow
+        assert gaps.max() - gaps.min() <= 1
+
+
+def test_spread_picks_every_kth_and_refuses_impossible_counts():
+    assert spread(6, 2) == [2, 5] and spread(30, 5) == [5, 11, 17, 23, 29] and spread(4, 2) == [1, 3] and spread(3, 0) == []
+    with pytest.raises(ClodsError, match="cannot pick 4 of 3"):
+        spread(3, 4)

@@ -8,7 +8,7 @@ frame of each trajectory and then generates multi-view images for 200 time steps
 the mesh. The results from the 5 trajectories are averaged." Here: the first
 `num_trajectories` trajectories of the dataset (paper: 5 of its training trajectories), the
 first half of each (paper: 200 of 400 steps), fitted on the training cameras of frame 0 and
-scored on the held-out cameras (`SplitSpec.test_views`, the last `num_views_test` of the rig)
+scored on the held-out cameras (`SplitSpec.test_views`: `num_views_test` spread evenly through the rig)
 at every scored frame, frame 0 included. "3DGS, trained separately per frame" is a renderer
 whose object has `per_frame = True`: it is fitted anew on every scored frame.
 """
