@@ -51,7 +51,7 @@ class ClodsConfig:
     start: StartGuess = "velocity"
     """Start of frame t+1's optimisation: the previous mesh ('previous', Algorithm S1) or extrapolated by its velocity."""
     num_cameras: int | None = None
-    """Training cameras used by stages 1-2 (spread evenly around the training rig); None: all (ablation 'number of cameras')."""
+    """Training cameras used by stages 1-2 (the first ones of the training rig); None: all (ablation 'number of cameras')."""
     extraction_seed: int | None = None
     """Seed of stages 1-2 (renderer fit, initial-mesh noise); None: the run's seed. A fixed value lets every seed
     of a run reuse one cached extraction, so the seeds then repeat stage 3 only."""

@@ -57,15 +57,15 @@ def video_train_ids(ctx: TaskContext) -> list[int]:
 
 
 def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
-    """Training camera indices used by stages 1-2: all, or `num_cameras` of them spread evenly around the rig."""
+    """Training camera indices used by stages 1-2: all, or the first `num_cameras` of them (neighbours on the rig:
+    two cameras spread to opposite sides would see the cloth along one line, with no baseline to triangulate)."""
     from clods_bench.benchmark.tasks.cdg import split_spec
-    from clods_bench.datasets.splits import spread
 
     views = list(split_spec(ctx).train_views)
     if opts.num_cameras is not None:
         if opts.num_cameras > len(views):
             raise ClodsError(f"{opts.num_cameras} cameras asked, the rig has {len(views)} training cameras", where="task_config.clods.num_cameras")
-        views = [views[i] for i in spread(len(views), opts.num_cameras)]
+        views = views[: opts.num_cameras]
     return views
 
 
