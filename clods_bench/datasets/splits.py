@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from clods_bench.errors import ClodsError
 
+
 def spread(n: int, k: int) -> list[int]:
     """k of the positions 0..n-1 spread evenly, every n/k-th, ending on the last (spread(6, 2) == [2, 5])."""
     if not 0 <= k <= n:

@@ -130,8 +130,8 @@ def visible_faces(verts: np.ndarray, cells: np.ndarray, cameras: Sequence[Camera
     """
     from scipy.ndimage import minimum_filter
 
-    pts = np.einsum("pc,fcx->fpx", _barycentric_grid(level), verts[cells]).reshape(-1, 3)
-    per_face = len(_barycentric_grid(level))
+    grid = _barycentric_grid(level)
+    pts = np.einsum("pc,fcx->fpx", grid, verts[cells]).reshape(-1, 3)
     seen = np.zeros(len(pts), bool)
     for cam in cameras:
         uv, z = cam.project(pts)
@@ -147,7 +147,7 @@ def visible_faces(verts: np.ndarray, cells: np.ndarray, cameras: Sequence[Camera
         footprint = z[inside] / float(cam.K[0, 0])  # one pixel's width in world units at that depth
         idx = np.flatnonzero(inside)
         seen[idx] |= z[inside] <= near[pix] + 3.0 * footprint
-    return seen.reshape(len(cells), per_face).any(axis=1)
+    return seen.reshape(len(cells), len(grid)).any(axis=1)
 
 
 def surface_init(
