@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer, positional_encoding
+from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer, positional_encoding, sample_grid
 
 from .conftest import grid_mesh, rig
 from .test_games import check_vertex_gradient, fitted, randomise
@@ -24,7 +24,7 @@ def _randomise_mlp(r: SmgsRenderer, seed: int = 0) -> None:
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for name, p in r.params.items():
-            if name.startswith("mlp_"):
+            if name.startswith("mlp_") or name == "mesh_grid":
                 p.copy_(torch.randn(p.shape, generator=g) * 0.7)
 
 
@@ -86,6 +86,70 @@ def test_fit_trains_the_mlp(mesh):
     before = SmgsRenderer(SmgsConfig(iterations=0))
     before.fit(mesh[0][None], mesh[1], mesh[2], np.full((1, 2, 16, 16, 3), 0.2, np.float32), cams)
     assert not torch.allclose(r.params["mlp_w0"], before.params["mlp_w0"])
+    assert not torch.allclose(r.params["mesh_grid"], before.params["mesh_grid"])
+
+
+def _bilinear_brute_force(grid: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Textbook bilinear interpolation of a (C,R,R) grid whose corner cells sit at -1 and 1; x runs along the last axis."""
+    C, R = grid.shape[0], grid.shape[-1]
+    out = np.zeros((xy.shape[0], C))
+    for n, (x, y) in enumerate(xy):
+        fx, fy = (x + 1) / 2 * (R - 1), (y + 1) / 2 * (R - 1)
+        i0, j0 = min(int(np.floor(fx)), R - 2), min(int(np.floor(fy)), R - 2)
+        tx, ty = fx - i0, fy - j0
+        out[n] = (grid[:, j0, i0] * (1 - tx) * (1 - ty) + grid[:, j0, i0 + 1] * tx * (1 - ty)
+                  + grid[:, j0 + 1, i0] * (1 - tx) * ty + grid[:, j0 + 1, i0 + 1] * tx * ty)  # fmt: skip
+    return out
+
+
+def test_sample_grid_matches_brute_force_bilinear():
+    rng = np.random.default_rng(0)
+    grid = rng.normal(size=(3, 5, 5))
+    xy = np.concatenate([rng.uniform(-1, 1, size=(40, 2)), [[-1.0, -1.0], [1.0, 1.0], [0.0, 0.5]]])
+    got = sample_grid(torch.tensor(grid), torch.tensor(xy)).numpy()
+    np.testing.assert_allclose(got, _bilinear_brute_force(grid, xy), atol=1e-12)
+    corner = sample_grid(torch.tensor(grid), torch.tensor([[-1.0, 1.0]])).numpy()[0]
+    np.testing.assert_allclose(corner, grid[:, -1, 0], atol=1e-12)  # x=-1 -> first column, y=1 -> last row
+    grid3 = rng.normal(size=(2, 3, 3, 3))
+    centre = sample_grid(torch.tensor(grid3), torch.zeros(1, 3, dtype=torch.float64)).numpy()[0]
+    np.testing.assert_allclose(centre, grid3[:, 1, 1, 1], atol=1e-12)  # 3-D mesh space: the middle node
+
+
+def test_mesh_grid_gradient_matches_finite_differences():
+    """d loss / d grid feature through the opacity MLP and the rasteriser, against central differences."""
+    mesh = grid_mesh(2, 1)
+    cams = rig(1, 12)
+    r = fitted(mesh, SmgsConfig(gaussians_per_face=2, iterations=0, backend="reference", normal_scale=1e-3, hidden=8, mesh_grid=3), cams, cls=SmgsRenderer)
+    randomise(r)
+    _randomise_mlp(r)
+    grid = r.params["mesh_grid"] = r.params["mesh_grid"].double()  # float64, so differences of 1e-6 resolve
+    target = torch.rand(1, 12, 12, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+
+    def loss() -> torch.Tensor:
+        return ((r.render(torch.tensor(mesh[0]), cams) - target) ** 2).sum()
+
+    grid.requires_grad_(True)
+    (g,) = torch.autograd.grad(loss(), grid)
+    fd = torch.zeros_like(grid)
+    with torch.no_grad():
+        for idx in np.ndindex(*grid.shape):
+            old = grid[idx].item()
+            grid[idx] = old + 1e-6
+            up = loss().item()
+            grid[idx] = old - 1e-6
+            fd[idx] = (up - loss().item()) / 2e-6
+            grid[idx] = old
+    assert g.abs().max() > 1e-4
+    np.testing.assert_allclose(g.numpy(), fd.numpy(), atol=1e-6, rtol=1e-4)
+
+
+def test_mesh_grid_switch(mesh):
+    """mesh_grid=0 drops the grid; 'world' and 'none' never build one."""
+    cams = rig(1, 12)
+    assert "mesh_grid" in fitted(mesh, SmgsConfig(iterations=0), cams, cls=SmgsRenderer).params
+    assert "mesh_grid" not in fitted(mesh, SmgsConfig(iterations=0, mesh_grid=0), cams, cls=SmgsRenderer).params
+    for inputs in ("world", "none"):
+        assert "mesh_grid" not in fitted(mesh, SmgsConfig(iterations=0, inputs=inputs), cams, cls=SmgsRenderer).params
 
 
 def test_bad_config_raises():
@@ -93,3 +157,7 @@ def test_bad_config_raises():
         SmgsRenderer(SmgsConfig(inputs="time"))  # type: ignore[arg-type]
     with pytest.raises(ClodsError, match="hidden"):
         SmgsRenderer(SmgsConfig(hidden=0))
+    with pytest.raises(ClodsError, match="mesh_grid"):
+        SmgsRenderer(SmgsConfig(mesh_grid=1))
+    with pytest.raises(ClodsError, match="grid_features"):
+        SmgsRenderer(SmgsConfig(grid_features=0))
