@@ -7,7 +7,7 @@ trajectories that Table 3 scores. Prints held-out PSNR (dB) per frame, the mean,
     python examples/studies/smgs_opacity_sweep.py data/flag-8dc5cfd642 [variant ...]
 
 Variants: games, smgs (current defaults), smgs-mesh, smgs-old (world_freqs 4, lr_mlp 0.005, no grid: the
-defaults before the sweep), smgs-world4 (defaults with world_freqs 4).
+defaults before the sweep), smgs-old-lr (those with lr_mlp 0.02).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ VARIANTS = {
     "smgs": lambda: SmgsRenderer(SmgsConfig(), seed=0),
     "smgs-mesh": lambda: SmgsRenderer(SmgsConfig(inputs="mesh"), seed=0),
     "smgs-old": lambda: SmgsRenderer(SmgsConfig(world_freqs=4, lr_mlp=0.005, mesh_grid=0), seed=0),
-    "smgs-world4": lambda: SmgsRenderer(SmgsConfig(world_freqs=4), seed=0),
+    "smgs-old-lr": lambda: SmgsRenderer(SmgsConfig(world_freqs=4, lr_mlp=0.02, mesh_grid=0), seed=0),
 }
 FRAMES = (0, 5, 10, 15)
 HELD_OUT = 5  # of the 30-camera rig, as Table 3
