@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from clods_bench.benchmark.image_metrics import psnr
 from clods_bench.datasets.splits import spread
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer
@@ -33,11 +34,6 @@ VARIANTS = {
 }
 FRAMES = (0, 5, 10, 15)
 HELD_OUT = 5  # of the 30-camera rig, as Table 3
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """Peak signal-to-noise ratio of images in [0, 1]."""
-    return float(-10.0 * np.log10(np.mean((a - b) ** 2)))
 
 
 def main(root: Path, names: list[str]) -> None:
