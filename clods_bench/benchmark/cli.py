@@ -111,6 +111,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--views", type=int, default=8, help="data/render: views to render")
     p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
     p.add_argument("--repeats", type=int, default=3, help="render: timed repeats (minimum reported)")
+    p.add_argument("--gsplat", action=argparse.BooleanOptionalAction, default=None,
+                   help="render: time the gsplat CUDA backend too (default: when gsplat and a GPU are available)")
+    p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
+                   help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
     p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames")
     p.set_defaults(func=cmd_bench)
@@ -321,7 +325,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     elif args.what == "render":
         from clods_bench.plugins.splatting.bench import print_bench_render
 
-        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views)
+        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views, gsplat=args.gsplat,
+                           reference=args.reference)  # fmt: skip
     else:
         from clods_bench.benchmark.sim_bench import bench_sim
 

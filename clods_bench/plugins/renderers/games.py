@@ -20,6 +20,7 @@ from torch import Tensor
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.checks import FitInputs, check_fit_inputs, check_render_cameras, check_render_verts
+from clods_bench.plugins.renderers.device import check_device_config, fit_device, leaf_to, tensors_to
 from clods_bench.plugins.renderers.fitting import ParamGroup, check_positive, fit_adam
 from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.mesh_gaussians import anchor_gaussians, barycentric_layout
@@ -59,6 +60,8 @@ class GamesConfig:
     """Colour behind the Gaussians (the ground-truth renderer's is white)."""
     backend: Backend = "cpu"
     """Splatting backend: 'cpu' (numba), 'reference' (plain torch, slow) or 'gsplat' (CUDA)."""
+    device: str = "cpu"
+    """Where parameters, targets and loss live during fit: 'cpu', or 'cuda[:N]' with backend gsplat."""
 
     def validate(self, where: str) -> None:
         """Raise ClodsError naming the first field that is out of range."""
@@ -80,6 +83,7 @@ class GamesConfig:
             raise ClodsError(f"must be 3 finite numbers, got {self.background!r}", where=f"{where}.background")
         if self.backend not in ("cpu", "reference", "gsplat"):
             raise ClodsError(f"unknown backend '{self.backend}'; known: cpu, reference, gsplat", where=f"{where}.backend")
+        check_device_config(self.device, self.backend, where)
 
 
 def logit(p: float) -> float:
@@ -102,6 +106,7 @@ class GamesRenderer:
         self.cells: Tensor | None = None
         self.bary = torch.tensor(barycentric_layout(self.config.gaussians_per_face), dtype=torch.float64)
         self.params: dict[str, Tensor] = {}
+        self.device = torch.device("cpu")  # where the fitted tensors live (config.device once fit)
 
     # ------------------------------------------------------------------ parameters
 
@@ -148,14 +153,16 @@ class GamesRenderer:
         """Fit colours, scales and opacities to B frames (B,N,H,W,3) with known meshes (B,V,3); returns statistics."""
         where = f"renderer '{self.name}'.fit"
         data = check_fit_inputs(verts, cells, mesh_pos, images, cameras, where)
+        device = fit_device(self.config.device, f"renderer_config.{self.name}")
         self.num_verts = data.verts.shape[1]
         self.cells = torch.from_numpy(data.cells)
         self.mesh_pos = torch.from_numpy(data.mesh_pos)
         gen = torch.Generator().manual_seed(self.seed)
         self._setup(data, gen)
-        self._init_params(data, gen)
-        frames = torch.from_numpy(data.verts).to(torch.float32)
-        targets = torch.from_numpy(data.images)
+        self._init_params(data, gen)  # on the CPU: the same initial values on every device
+        self._move_to(device)
+        frames = torch.from_numpy(data.verts).to(device, torch.float32)
+        targets = torch.from_numpy(data.images).to(device)
         cams = list(data.cameras)
 
         def loss_at(it: int) -> Tensor:
@@ -169,6 +176,14 @@ class GamesRenderer:
         stats["num_gaussians"] = float(self.num_gaussians)
         return stats
 
+    def _move_to(self, device: torch.device) -> None:
+        """Move the parameters (as new leaves) and every other tensor attribute to `device`."""
+        self.params = {k: leaf_to(p, device) for k, p in self.params.items()}
+        for name, value in list(vars(self).items()):
+            if name != "params":
+                setattr(self, name, tensors_to(value, device))
+        self.device = device
+
     def _setup(self, data: FitInputs, gen: torch.Generator) -> None:
         """Hook for subclasses that need the fit data before parameters are created (SMGS: normalisation)."""
 
@@ -179,13 +194,13 @@ class GamesRenderer:
             raise ClodsError("render called before fit", where=where, hint="call fit on the first frame first")
         v = check_render_verts(verts, self.num_verts, where)
         cams = check_render_cameras(cameras, where)
-        means, covars, opac, colors = self.gaussians(v)
+        means, covars, opac, colors = self.gaussians(v.to(self.device))  # differentiable across devices
         out = render_gaussians(
             means, covars, opac, colors, cams,
             sh_degree=self.config.sh_degree if self.config.sh_degree > 0 else None,
             background=self.config.background, backend=self.config.backend,
         )  # fmt: skip
-        return out.rgb
+        return out.rgb.to(v.device)
 
 
 def init_colors(num: int, sh_degree: int) -> dict[str, Tensor]:

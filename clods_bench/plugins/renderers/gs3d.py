@@ -28,6 +28,7 @@ from torch import Tensor
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.checks import check_fit_inputs, check_render_cameras, check_render_verts
+from clods_bench.plugins.renderers.device import check_device_config, fit_device, leaf_to
 from clods_bench.plugins.renderers.fitting import ParamGroup, check_positive, fit_adam
 from clods_bench.plugins.renderers.games import Backend, colors_of, init_colors, logit
 from clods_bench.plugins.renderers.losses import render_loss
@@ -74,6 +75,8 @@ class Gs3dConfig:
     """Colour behind the Gaussians (the ground truth's is white)."""
     backend: Backend = "cpu"
     """Splatting backend: 'cpu' (numba), 'reference' (plain torch) or 'gsplat' (CUDA)."""
+    device: str = "cpu"
+    """Where parameters, targets and loss live during fit: 'cpu', or 'cuda[:N]' with backend gsplat."""
 
     def validate(self, where: str) -> None:
         """Raise ClodsError naming the first field that is out of range."""
@@ -97,6 +100,7 @@ class Gs3dConfig:
             raise ClodsError(f"must be 3 finite numbers, got {self.background!r}", where=f"{where}.background")
         if self.backend not in ("cpu", "reference", "gsplat"):
             raise ClodsError(f"unknown backend '{self.backend}'; known: cpu, reference, gsplat", where=f"{where}.backend")
+        check_device_config(self.device, self.backend, where)
 
 
 def rotmat_to_quat(R: Tensor) -> Tensor:
@@ -204,6 +208,7 @@ class Gs3dRenderer:
         """Fit one representation per frame b on images[b] (initialised from verts[b]); returns mean statistics."""
         data = check_fit_inputs(verts, cells, mesh_pos, images, cameras, f"renderer '{self.name}'.fit")
         cfg, cams = self.config, list(data.cameras)
+        device = fit_device(cfg.device, f"renderer_config.{self.name}")
         stats: list[dict[str, float]] = []
         for b in range(data.verts.shape[0]):
             gen = torch.Generator().manual_seed(self.seed * 100003 + len(self.frames))
@@ -219,8 +224,9 @@ class Gs3dRenderer:
                 "log_scales": log_scales.requires_grad_(),
                 "opacity_logit": torch.full((cfg.num_gaussians,), logit(cfg.init_opacity)).requires_grad_(),
                 **init_colors(cfg.num_gaussians, cfg.sh_degree),
-            }
-            target = torch.from_numpy(data.images[b])
+            }  # drawn on the CPU: the same initial values on every device
+            p = {k: leaf_to(t, device) for k, t in p.items()}
+            target = torch.from_numpy(data.images[b]).to(device)
             extent = float(np.linalg.norm(v.max(0) - v.min(0))) or mean_face_size(v, data.cells)
             groups = [
                 ParamGroup("means", [p["means"]], cfg.lr_means * extent),
@@ -285,4 +291,4 @@ class Gs3dRenderer:
         if i is None:
             raise ClodsError(f"no representation fitted on this mesh ({len(self.frames)} frames cached)", where=where,
                              hint="gs3d is per-frame: call fit with this frame's mesh and images first")  # fmt: skip
-        return self._render(self.frames[i][1], cams)
+        return self._render(self.frames[i][1], cams).to(v.device)

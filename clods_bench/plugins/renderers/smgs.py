@@ -83,7 +83,7 @@ def positional_encoding(x: Tensor, freqs: int) -> Tensor:
     """(G, D (1 + 2L)) NeRF encoding of (G,D) coordinates: x, sin(2^k pi x), cos(2^k pi x) for k < L."""
     if freqs == 0:
         return x
-    scaled = x[:, None, :] * (math.pi * 2.0 ** torch.arange(freqs, dtype=x.dtype))[None, :, None]  # (G,L,D)
+    scaled = x[:, None, :] * (math.pi * 2.0 ** torch.arange(freqs, dtype=x.dtype, device=x.device))[None, :, None]  # (G,L,D)
     return torch.cat([x, torch.sin(scaled).flatten(1), torch.cos(scaled).flatten(1)], dim=1)
 
 
@@ -164,7 +164,7 @@ class SmgsRenderer(GamesRenderer):
             parts.append(positional_encoding(self.mesh_means.to(means.dtype), cfg.mesh_freqs))
         if cfg.uses_grid:
             parts.append(sample_grid(self.params["mesh_grid"].to(means.dtype), self.mesh_means.to(means.dtype)))
-        return torch.cat(parts, dim=1) if parts else torch.zeros(means.shape[0], 1, dtype=means.dtype)
+        return torch.cat(parts, dim=1) if parts else torch.zeros(means.shape[0], 1, dtype=means.dtype, device=means.device)
 
     def opacities(self, means: Tensor, verts: Tensor) -> Tensor:
         """(G,) opacities sigmoid(MLP(features)); they change with the world positions unless inputs is 'mesh'/'none'."""

@@ -1,5 +1,8 @@
 """Benchmark of the splatting backends on a fixed cloth scene: `bench_render(...)` returns a dict for the CLI.
 
+With gsplat and a CUDA GPU present, the gsplat backend is timed too (inputs already on the GPU, every
+call synchronised, peak CUDA memory from torch's allocator) and compared with the cpu backend.
+
 Scene (`flag_scene.bench_scene`): the FLAGSIMPLE-sized flag (1579 nodes, 3028 faces) with a travelling
 wave, 5 Gaussians per face at fixed barycentric points with flat GaMeS face-frame covariances (zero
 thickness along the normal), 8 cameras at 128x128 around it. Timed: forward and
@@ -10,6 +13,7 @@ every millisecond), so allocator caches of earlier runs do not hide it.
 
 from __future__ import annotations
 
+import functools
 import os
 import statistics
 import threading
@@ -20,6 +24,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from clods_bench.datasets.cameras import Camera
+from clods_bench.errors import ClodsError
 from clods_bench.plugins.splatting.flag_scene import bench_scene
 from clods_bench.plugins.splatting.rasterize import RenderOutput, render_gaussians
 
@@ -79,14 +84,22 @@ def _max_rss() -> int:
         return 0
 
 
+@functools.lru_cache(maxsize=4)
+def _loss_weights(C: int, H: int, W: int, dtype: torch.dtype, device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Fixed random weights of rgb, alpha and depth in the benchmark loss: drawn once per shape (the same on every
+    device), so drawing them is not timed."""
+    g = torch.Generator().manual_seed(1)
+    return tuple(torch.rand((C, H, W, k), generator=g, dtype=dtype).to(device) for k in (3, 1, 1))  # type: ignore[return-value]
+
+
 def _run(data: dict[str, torch.Tensor], cameras: list[Camera], backend: str, backward: bool) -> tuple[RenderOutput, list]:
     """One render (and backward of a fixed random loss); returns the output and the input gradients."""
     leaves = {k: t.clone().requires_grad_(True) for k, t in data.items()}
     out = render_gaussians(leaves["means"], leaves["covars"], leaves["opacities"], leaves["colors"], cameras, backend=backend)
     if not backward:
         return out, []
-    g = torch.Generator().manual_seed(1)
-    loss = sum((x * torch.rand(x.shape, generator=g, dtype=x.dtype)).sum() for x in (out.rgb, out.alpha, out.depth))
+    weights = _loss_weights(*out.alpha.shape[:3], out.rgb.dtype, str(out.rgb.device))
+    loss = sum((x * w).sum() for x, w in zip((out.rgb, out.alpha, out.depth), weights))
     loss.backward()
     return out, [leaves[k].grad for k in ("means", "covars", "opacities", "colors")]
 
@@ -106,6 +119,7 @@ def _peak_child(backend: str, seed: int, size: int, num_cameras: int) -> float:
     data, cameras = bench_scene(seed, size, num_cameras)
     small = {k: v[:8] for k, v in data.items()}
     _run(small, cameras[:1], backend, backward=True)  # load kernels, allocate nothing scene-sized
+    _loss_weights(len(cameras), cameras[0].height, cameras[0].width, data["means"].dtype, "cpu")  # not part of the peak
     with _PeakRSS() as mem:
         _run(data, cameras, backend, backward=True)
     return round(mem.peak / 2**20, 1)
@@ -120,14 +134,63 @@ def peak_memory_mb(backend: str, seed: int = 0, size: int = 128, num_cameras: in
         return pool.apply(_peak_child, (backend, seed, size, num_cameras))
 
 
-def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: int = 8, memory: bool = True) -> dict:
-    """Time 'cpu' and 'reference' on the fixed flag scene: ms (min and median of `repeats`), speed-ups, peak
-    memory (fresh process per backend, skipped with memory=False) and the largest cpu-vs-reference differences."""
+def _max_diffs(a: tuple[RenderOutput, list], b: tuple[RenderOutput, list]) -> dict:
+    """Largest |a - b| on rgb/alpha and depth (on the CPU) and the largest gradient difference relative to max |grad b|."""
+    (o_a, g_a), (o_b, g_b) = a, b
+
+    def d(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        return (x.detach().cpu().double() - y.detach().cpu().double()).abs()
+
+    img = torch.cat([d(o_a.rgb, o_b.rgb), d(o_a.alpha, o_b.alpha)], dim=-1)
+    return {
+        "images": float(img.max()),
+        "images_mean": float(img.mean()),
+        "images_frac_above_1e-3": float((img > 1e-3).double().mean()),
+        "depth": float(d(o_a.depth, o_b.depth).max()),
+        "grads_relative": max(float(d(x, y).max() / y.detach().abs().max().clamp(min=1e-30)) for x, y in zip(g_a, g_b)),
+    }
+
+
+def bench_gsplat(data: dict[str, torch.Tensor], cameras: list[Camera], repeats: int, cpu: tuple[RenderOutput, list]) -> dict:
+    """Time backend 'gsplat' on GPU-resident inputs (each call synchronised) and compare it with the cpu output."""
+    dev = torch.device("cuda")
+    gdata = {k: v.to(dev) for k, v in data.items()}
+
+    def run(backward: bool) -> tuple[RenderOutput, list]:
+        out = _run(gdata, cameras, "gsplat", backward)
+        torch.cuda.synchronize(dev)
+        return out
+
+    run(True)  # warm-up: kernel load (and gsplat's first-use build)
+    fwd = _time(lambda: run(False), repeats)
+    torch.cuda.reset_peak_memory_stats(dev)
+    base = torch.cuda.memory_allocated(dev)
+    both = _time(lambda: run(True), repeats)
+    peak = (torch.cuda.max_memory_allocated(dev) - base) / 2**20
+    return {"forward_ms": round(fwd[0], 2), "forward_ms_median": round(fwd[1], 2), "forward_backward_ms": round(both[0], 2),
+            "forward_backward_ms_median": round(both[1], 2), "peak_cuda_mb": round(peak, 1),
+            "device": torch.cuda.get_device_name(dev), "max_abs_diff_vs_cpu": _max_diffs(run(True), cpu)}  # fmt: skip
+
+
+def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: int = 8, memory: bool = True,
+                 gsplat: bool | None = None, reference: bool = True) -> dict:  # fmt: skip
+    """Time the splatting backends on the fixed flag scene: ms (min and median of `repeats`), speed-ups, peak
+    memory (fresh process per CPU backend, skipped with memory=False) and the largest differences to 'cpu'.
+
+    gsplat: also time backend 'gsplat' (None: when gsplat and CUDA are available; True: required).
+    reference: time the plain-torch oracle too (its memory grows with pixels x Gaussians per tile: leave it out
+    at large image sizes; the ratios are then taken against 'cpu').
+    """
+    from clods_bench.plugins.splatting.gsplat_backend import INSTALL_HINT, gsplat_available
+
+    available, why = gsplat_available() if gsplat is not False else (False, "not asked for")
+    if gsplat and not available:
+        raise ClodsError(INSTALL_HINT, where="bench render --gsplat", hint=why)
     data, cameras = bench_scene(seed, size, num_cameras)
     result: dict = {"gaussians": int(data["means"].shape[0]), "cameras": num_cameras, "image": f"{size}x{size}",
                     "threads": {"torch": torch.get_num_threads(), "cpus": os.cpu_count()}}  # fmt: skip
     outputs = {}
-    for backend in ("cpu", "reference"):
+    for backend in ("cpu", "reference") if reference else ("cpu",):
         _run(data, cameras, backend, backward=True)  # warm-up (numba compile / cache load)
         fwd = _time(lambda: _run(data, cameras, backend, False), repeats)
         both = _time(lambda: _run(data, cameras, backend, True), repeats)
@@ -135,16 +198,17 @@ def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: 
         result[backend] = {"forward_ms": round(fwd[0], 1), "forward_ms_median": round(fwd[1], 1),
                            "forward_backward_ms": round(both[0], 1), "forward_backward_ms_median": round(both[1], 1),
                            "peak_rss_mb": peak_memory_mb(backend, seed, size, num_cameras) if memory else None}  # fmt: skip
-    ref, fast = result["reference"], result["cpu"]
-    result["speedup_forward"] = round(ref["forward_ms"] / fast["forward_ms"], 1)
-    result["speedup_forward_backward"] = round(ref["forward_backward_ms"] / fast["forward_backward_ms"], 1)
-    (o_f, g_f), (o_r, g_r) = outputs["cpu"], outputs["reference"]
-    result["max_abs_diff"] = {
-        "images": max(float((getattr(o_f, k) - getattr(o_r, k)).detach().abs().max()) for k in ("rgb", "alpha")),
-        "depth": float((o_f.depth - o_r.depth).detach().abs().max()),
-        "grads_relative": max(float((a - b).abs().max() / b.abs().max().clamp(min=1e-30)) for a, b in zip(g_f, g_r)),
-    }
-    result["mean_alpha"] = round(float(o_f.alpha.detach().mean()), 3)
+    fast = result["cpu"]
+    if reference:
+        ref = result["reference"]
+        result["speedup_forward"] = round(ref["forward_ms"] / fast["forward_ms"], 1)
+        result["speedup_forward_backward"] = round(ref["forward_backward_ms"] / fast["forward_backward_ms"], 1)
+        result["max_abs_diff"] = _max_diffs(outputs["cpu"], outputs["reference"])
+    result["mean_alpha"] = round(float(outputs["cpu"][0].alpha.detach().mean()), 3)
+    if available:
+        result["gsplat"] = bench_gsplat(data, cameras, repeats, outputs["cpu"])
+    else:
+        result["gsplat_skipped"] = why
     return result
 
 
@@ -157,35 +221,64 @@ def render_table(result: dict) -> Table:
 
     title = (f"clods-bench bench render: {result['gaussians']} flat Gaussians on the 1579-node flag, "
              f"{result['cameras']} cameras {result['image']}, {result['threads']['torch']} threads")  # fmt: skip
+    fast, ref, gs = result["cpu"], result.get("reference"), result.get("gsplat")
     table = Table(title=title)
-    for col in ("what", "cpu (numba)", "reference (torch)", "reference / cpu", "target", "met"):
+    cols = ["what", "cpu (numba)"] + (["reference (torch)"] if ref else []) + ([f"gsplat ({gs['device']})"] if gs else [])
+    cols += (["reference / cpu"] if ref else []) + (["cpu / gsplat"] if gs else []) + (["target", "met"] if ref else [])
+    for col in cols:
         table.add_column(col, justify="right")
-    fast, ref = result["cpu"], result["reference"]
-    for key, label, speed in (("forward_ms", "forward ms (min)", "speedup_forward"),
-                              ("forward_backward_ms", "forward+backward ms (min)", "speedup_forward_backward")):  # fmt: skip
-        target = SPEEDUP_TARGET if key == "forward_backward_ms" else None
-        table.add_row(label, f"{fast[key]:.1f}", f"{ref[key]:.1f}", f"{result[speed]:.1f}x",
-                      "" if target is None else f">= {target:.0f}x", "" if target is None else ok(result[speed] >= target))  # fmt: skip
-    table.add_row("forward+backward ms (median)", f"{fast['forward_backward_ms_median']:.1f}",
-                  f"{ref['forward_backward_ms_median']:.1f}", "", "", "")  # fmt: skip
-    table.add_row("forward+backward ms / view", f"{fast['forward_backward_ms'] / result['cameras']:.1f}",
-                  f"{ref['forward_backward_ms'] / result['cameras']:.1f}", "", "", "")  # fmt: skip
+
+    def row(label: str, values: list[str], ratios: list[str] = (), check: tuple[str, str] = ("", "")) -> None:
+        ratios = list(ratios) + [""] * ((ref is not None) + (gs is not None) - len(ratios))
+        table.add_row(label, *values, *ratios, *(check if ref else ()))
+
+    def times(key: str, digits: int = 1) -> list[str]:
+        return [f"{b[key]:.{digits}f}" for b in (fast, ref, gs) if b]
+
+    def ratios(key: str) -> list[str]:
+        return ([f"{ref[key] / fast[key]:.1f}x"] if ref else []) + ([f"{fast[key] / gs[key]:.1f}x"] if gs else [])
+
+    row("forward ms (min)", times("forward_ms"), ratios("forward_ms"))
+    target = result.get("speedup_forward_backward", 0.0) >= SPEEDUP_TARGET
+    row("forward+backward ms (min)", times("forward_backward_ms"), ratios("forward_backward_ms"),
+        (f">= {SPEEDUP_TARGET:.0f}x", ok(target)))  # fmt: skip
+    row("forward+backward ms (median)", times("forward_backward_ms_median"))
+    row("forward+backward ms / view", [f"{b['forward_backward_ms'] / result['cameras']:.2f}" for b in (fast, ref, gs) if b])
     if fast["peak_rss_mb"] is not None:
-        table.add_row("peak memory MiB (RSS rise)", f"{fast['peak_rss_mb']:.0f}", f"{ref['peak_rss_mb']:.0f}",
-                      f"{ref['peak_rss_mb'] / max(fast['peak_rss_mb'], 1e-9):.1f}x", "", "")  # fmt: skip
-    diff = result["max_abs_diff"]
-    table.add_row("max |cpu - ref| rgb, alpha", f"{diff['images']:.1e}", "", "", f"<= {AGREEMENT_TOL:.0e}", ok(diff["images"] <= AGREEMENT_TOL))
-    table.add_row("max |cpu - ref| depth", f"{diff['depth']:.1e}", "", "", "", "")
-    table.add_row("max gradient diff / max |grad|", f"{diff['grads_relative']:.1e}", "", "", f"<= {AGREEMENT_TOL:.0e}",
-                  ok(diff["grads_relative"] <= AGREEMENT_TOL))  # fmt: skip
+        mem = [f"{b['peak_rss_mb']:.0f}" for b in (fast, ref) if b] + ([f"{gs['peak_cuda_mb']:.0f} (CUDA)"] if gs else [])
+        row("peak memory MiB (RSS rise)", mem, [f"{ref['peak_rss_mb'] / max(fast['peak_rss_mb'], 1e-9):.1f}x"] if ref else [])
+    blank = [""] * ((ref is not None) + (gs is not None))
+    if ref:
+        diff = result["max_abs_diff"]
+        row("max |cpu - ref| rgb, alpha", [f"{diff['images']:.1e}", *blank], [],
+            (f"<= {AGREEMENT_TOL:.0e}", ok(diff["images"] <= AGREEMENT_TOL)))  # fmt: skip
+        row("max |cpu - ref| depth", [f"{diff['depth']:.1e}", *blank])
+        row("max gradient diff / max |grad|", [f"{diff['grads_relative']:.1e}", *blank], [],
+            (f"<= {AGREEMENT_TOL:.0e}", ok(diff["grads_relative"] <= AGREEMENT_TOL)))  # fmt: skip
+    if gs:
+        d = gs["max_abs_diff_vs_cpu"]
+        pad = [""] * (ref is not None)
+        row("max |gsplat - cpu| rgb, alpha", ["", *pad, f"{d['images']:.1e}"])
+        row("mean |gsplat - cpu| rgb, alpha", ["", *pad, f"{d['images_mean']:.1e}"])
+        row("share of values off by > 1e-3", ["", *pad, f"{100 * d['images_frac_above_1e-3']:.4f}%"])
+        row("max |gsplat - cpu| depth", ["", *pad, f"{d['depth']:.1e}"])
+        row("gsplat gradient diff / max |grad cpu|", ["", *pad, f"{d['grads_relative']:.1e}"])
     return table
 
 
-def print_bench_render(console: Console, repeats: int = 3, size: int = 128, num_cameras: int = 8, memory: bool = True) -> dict:
+def print_bench_render(console: Console, repeats: int = 3, size: int = 128, num_cameras: int = 8, memory: bool = True,
+                       gsplat: bool | None = None, reference: bool = True) -> dict:  # fmt: skip
     """Run `bench_render` with a status line, print its table on `console` and return the result dict."""
-    with console.status(f"splatting: {num_cameras} views at {size}x{size}, cpu and reference backends ..."):
-        result = bench_render(repeats=repeats, size=size, num_cameras=num_cameras, memory=memory)
+    backends = "cpu" + (", reference" if reference else "") + (", gsplat" if gsplat is not False else "")
+    with console.status(f"splatting: {num_cameras} views at {size}x{size}, backends {backends} ..."):
+        result = bench_render(repeats=repeats, size=size, num_cameras=num_cameras, memory=memory, gsplat=gsplat,
+                              reference=reference)  # fmt: skip
     console.print(render_table(result))
+    if "gsplat" in result:
+        console.print("gsplat projects in float32; the cpu backends project in float64 because det(cov2d) of flat "
+                      "Gaussians cancels in float32 (README: 'The gsplat backend on a GPU').")  # fmt: skip
+    if "gsplat_skipped" in result:
+        console.print(f"gsplat backend not timed: {result['gsplat_skipped']}")
     return result
 
 

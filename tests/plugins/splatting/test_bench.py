@@ -53,3 +53,40 @@ def test_bench_render_fast_backend_is_ten_times_faster_and_agrees() -> None:
     r = bench_render(repeats=2)
     assert r["speedup_forward_backward"] >= 10, r
     assert r["max_abs_diff"]["images"] < 1e-5 and r["max_abs_diff"]["grads_relative"] < 1e-5, r
+
+
+def _fake_gsplat() -> dict:
+    return {"forward_ms": 2.0, "forward_ms_median": 2.1, "forward_backward_ms": 4.0, "forward_backward_ms_median": 4.2,
+            "peak_cuda_mb": 18.0, "device": "FakeGPU",
+            "max_abs_diff_vs_cpu": {"images": 3.3e-2, "images_mean": 5.4e-7, "images_frac_above_1e-3": 5.3e-5,
+                                    "depth": 3.1e-5, "grads_relative": 0.16}}  # fmt: skip
+
+
+def test_render_table_adds_a_gsplat_column_with_its_ratio_to_cpu() -> None:
+    result = _fake_result(20.0) | {"gsplat": _fake_gsplat()}
+    console = Console(record=True, width=260)
+    console.print(render_table(result))
+    text = console.export_text()
+    assert "gsplat (FakeGPU)" in text and "cpu / gsplat" in text
+    row = next(line for line in text.splitlines() if "forward+backward ms (min)" in line)
+    assert "4.0" in row and "5.0x" in row and "20.0x" in row  # cpu 20 ms / gsplat 4 ms; reference / cpu
+    share = next(line for line in text.splitlines() if "share of values" in line)
+    assert "0.0053%" in share
+
+
+def test_render_table_without_the_reference_has_no_target_columns() -> None:
+    result = _fake_result(20.0)
+    for key in ("reference", "speedup_forward", "speedup_forward_backward", "max_abs_diff"):
+        result.pop(key)
+    result["gsplat"] = _fake_gsplat()
+    console = Console(record=True, width=260)
+    console.print(render_table(result))
+    text = console.export_text()
+    assert "reference" not in text and "target" not in text and "cpu / gsplat" in text
+    assert "5.0x" in next(line for line in text.splitlines() if "forward ms (min)" in line)  # cpu forward 10 ms / gsplat 2 ms
+
+
+def test_bench_render_without_reference_or_gsplat_times_only_cpu() -> None:
+    r = bench_render(repeats=1, size=32, num_cameras=1, memory=False, gsplat=False, reference=False)
+    assert "reference" not in r and "speedup_forward_backward" not in r and r["gsplat_skipped"] == "not asked for"
+    assert r["cpu"]["forward_backward_ms"] > 0 and 0 < r["mean_alpha"] <= 1

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs]`.
+#   build: compile gsplat's CUDA kernels (JIT, first use) and time it
+#   test:  the splatting and renderer tests, the gsplat-vs-cpu agreement tests among them (-rs lists skips)
+#   bench: `clods-bench bench render` with the gsplat column at the issue's size (8 views, 128 px, with the
+#          torch reference) and at the paper's image size (30 views, 800 px, cpu vs gsplat)
+#   fit:   examples/gpu/paper_size_fit.py: GaMeS / SMGS fit and stage-2 step at 25 views of 800 px, cpu vs GPU
+#   nvs:   `clods-bench run nvs --preset ci` for smgs on the GPU (device cuda, backend gsplat) and on the CPU
+# Logs go to $OUT (default ./gpu-check). Needs: clods-bench installed, gsplat, torch with CUDA, nvcc.
+set -uo pipefail
+OUT=${OUT:-gpu-check}
+mkdir -p "$OUT"
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-$(nproc)}
+stages=${*:-build test bench fit nvs}
+log() { tee -a "$OUT/$1"; }
+for stage in $stages; do
+  case $stage in
+    build)
+      nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv 2>&1 | log gpu.txt
+      python3 -c "import torch, gsplat; print('torch', torch.__version__, 'cuda', torch.version.cuda, 'gsplat', gsplat.__version__, torch.cuda.get_device_name())" 2>&1 | log gpu.txt
+      /usr/bin/time -f "gsplat kernels built/loaded in %e s" python3 -c "from gsplat.cuda._backend import _C; assert _C is not None, 'gsplat extension missing'" 2>&1 | log gpu.txt ;;
+    test)
+      python3 -m pytest -q -rs tests/plugins/splatting tests/plugins/renderers 2>&1 | log pytest_gpu.txt ;;
+    bench)
+      clods-bench bench render 2>&1 | log bench_render.txt
+      clods-bench bench render --views 30 --size 800 --no-reference 2>&1 | log bench_render.txt ;;
+    fit)
+      python3 examples/gpu/paper_size_fit.py --size 800 --views 25 --iterations ${FIT_ITERATIONS:-5} 2>&1 | log paper_size_fit.txt ;;
+    nvs)
+      for setup in cuda:gsplat cpu:cpu; do
+        device=${setup%:*} backend=${setup#*:}
+        /usr/bin/time -f "run nvs smgs device=$device backend=$backend: %e s" clods-bench run nvs --renderer smgs --preset ci \
+          --no-progress --set runs_dir="/tmp/gpu-check-runs-$device" --set renderer_config.smgs.backend=$backend \
+          --set renderer_config.smgs.device=$device 2>&1 | log nvs.txt
+      done ;;
+    *) echo "unknown stage '$stage' (known: build test bench fit nvs)" >&2; exit 2 ;;
+  esac
+done
