@@ -1,25 +1,31 @@
-"""Backend 'gsplat': the same render through `gsplat.rasterization` on a CUDA GPU (optional dependency).
+"""Backend 'gsplat': our EWA projection on the GPU, then gsplat's tile intersection and rasterization kernels.
 
 gsplat is imported lazily, only when this backend is used; without gsplat or CUDA the call raises a
 ClodsError saying what to install. Inputs move to the GPU and results come back to the device of
-`means` (autograd follows). We request 'RGB+D' (accumulated depth) without gsplat backgrounds and
-composite the background / normalise depth in torch exactly like the CPU backends, which keeps the
-call independent of how gsplat versions pad backgrounds for the depth channel.
-Known differences from the CPU backends: gsplat projects in float32, where det(cov2d) of a flat Gaussian
-seen nearly edge-on cancels (the CPU projection runs in float64): on `bench render`'s flag about 0.005% of
-the image values differ by more than 1e-3, at most by 0.03 (128 px) to 0.27 (800 px), measured on an H100
-and reproduced on the CPU by examples/studies/float32_projection.py. gsplat also clamps alpha at 0.999
-instead of 3DGS's 0.99 and stops at T <= 1e-4 instead of T < 1e-4 (pixels with opacity above 0.99 or a
-transmittance of exactly 1e-4).
+`means` (autograd follows).
+
+Why not `gsplat.rasterization` end to end: it projects in float32, where det(cov2d) = a c - b^2 of a
+flat Gaussian seen nearly edge-on cancels. On `bench render`'s flag that moved 0.005% of the image values
+by more than 1e-3, at most 0.03 (128 px) to 0.27 (800 px) (measured on an H100; the same differences
+appear on the CPU with the projection forced to float32: examples/studies/float32_projection.py). So the
+projection here is `projection.project_gaussians` (float64 torch, autograd for its backward), shared
+with the CPU backends; gsplat's kernels then bin (`isect_tiles`, `isect_offset_encode`) and composite
+(`rasterize_to_pixels`, colour and depth as four channels) in float32.
+Remaining differences from the CPU backends: float32 compositing, and gsplat's alpha clamp at 0.999
+instead of 3DGS's 0.99 (only Gaussians with opacity above 0.99 differ) and its stop at T <= 1e-4
+instead of T < 1e-4.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import Tensor
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.projection import EPS2D
+from clods_bench.plugins.splatting.projection import EPS2D, project_gaussians
+from clods_bench.plugins.splatting.sh import view_colors
 
 INSTALL_HINT = "backend gsplat needs gsplat and a CUDA GPU: pip install gsplat"
 
@@ -33,6 +39,14 @@ def gsplat_available() -> tuple[bool, str]:
     except Exception as exc:  # ImportError, or a broken CUDA extension build
         return False, f"gsplat not importable: {exc}"
     return True, ""
+
+
+available = gsplat_available  # looked up at call time (tests stand in for gsplat on a machine without it)
+
+
+def gpu_for(means: Tensor) -> torch.device:
+    """The CUDA device to render on: that of `means` if it is on one, else the current one."""
+    return means.device if means.device.type == "cuda" else torch.device("cuda")
 
 
 def render_gsplat(
@@ -51,41 +65,32 @@ def render_gsplat(
     tile: int,
     depth_mode: str,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """rgb (C,H,W,3), alpha (C,H,W,1), depth (C,H,W,1), radii (C,G) rendered by gsplat on CUDA."""
-    ok, why = gsplat_available()
+    """rgb (C,H,W,3), alpha (C,H,W,1), depth (C,H,W,1), radii (C,G) rendered on CUDA."""
+    ok, why = available()
     if not ok:
         raise ClodsError(INSTALL_HINT, where="render_gaussians(backend='gsplat')", hint=why)
-    from gsplat import rasterization
+    from gsplat.cuda._wrapper import isect_offset_encode, isect_tiles, rasterize_to_pixels
 
-    dev, dtype = torch.device("cuda"), torch.float32
-    C = Ks.shape[0]
-    viewmats = torch.eye(4, dtype=dtype, device=dev).repeat(C, 1, 1)  # (C,4,4) world-to-camera
-    viewmats[:, :3, :3] = Rs.to(dev, dtype)
-    viewmats[:, :3, 3] = ts.to(dev, dtype)
-    render, alpha, meta = rasterization(
-        means=means.to(dev, dtype),
-        quats=None,
-        scales=None,
-        opacities=opacities.to(dev, dtype),
-        colors=colors.to(dev, dtype),
-        viewmats=viewmats,
-        Ks=Ks.to(dev, dtype),
-        width=width,
-        height=height,
-        near_plane=near,
-        eps2d=EPS2D,
-        sh_degree=sh_degree,
-        packed=False,
-        tile_size=tile,
-        render_mode="RGB+D",
-        rasterize_mode="classic",
-        covars=covars.to(dev, dtype),
-    )
+    dev = gpu_for(means)
+    f32 = torch.float32
+    m, o = means.to(dev), opacities.to(dev)
+    K, R, t = Ks.to(dev), Rs.to(dev), ts.to(dev)
+    proj = project_gaussians(m, covars.to(dev), o, K, R, t, width, height, near=near, eps2d=EPS2D)  # float64 inside
+    centers = -torch.einsum("cji,cj->ci", R, t)  # -R^T t
+    C, G = proj.radii.shape[:2]
+    rgb_cg = view_colors(colors.to(dev), m, centers.to(m.dtype), sh_degree)  # (C,G,3)
+    feats = torch.cat([rgb_cg.to(f32), proj.depths.to(f32)[..., None]], dim=-1).contiguous()  # colour + depth
+    means2d = proj.means2d.to(f32).contiguous()
+    tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
+    _, isect_ids, flatten_ids = isect_tiles(means2d.detach(), proj.radii.contiguous(), proj.depths.detach().to(f32).contiguous(),
+                                            tile, tiles_x, tiles_y)  # fmt: skip
+    offsets = isect_offset_encode(isect_ids, C, tiles_x, tiles_y)
+    render, alpha = rasterize_to_pixels(
+        means2d, proj.conics.to(f32).contiguous(), feats, o.to(f32)[None].expand(C, G).contiguous(),
+        width, height, tile, offsets, flatten_ids,
+    )  # fmt: skip
     out = means.device, means.dtype
     color, dacc, alpha = render[..., :3].to(*out), render[..., 3:4].to(*out), alpha.to(*out)
     rgb = color + (1.0 - alpha) * background[:, None, None, :].to(*out)
     depth = dacc / alpha.clamp(min=1e-10) if depth_mode == "expected" else dacc
-    radii = meta["radii"]
-    if radii.dim() == 3:  # newer gsplat: per-axis (C,G,2)
-        radii = radii.max(dim=-1).values
-    return rgb, alpha, depth, radii.to(means.device, torch.int32)
+    return rgb, alpha, depth, proj.radii.max(dim=-1).values.to(means.device)

@@ -107,14 +107,14 @@ def project_gaussians(
 
     JR = J @ R[:, None]  # (C,G,2,3): Jacobian of pixel w.r.t. world position
     cov2d = JR @ S[None] @ JR.transpose(-1, -2)  # (C,G,2,2) = J R S R^T J^T
-    cov2d = 0.5 * (cov2d + cov2d.transpose(-1, -2)) + eps2d * torch.eye(2, dtype=f64)
+    cov2d = 0.5 * (cov2d + cov2d.transpose(-1, -2)) + eps2d * torch.eye(2, dtype=f64, device=m.device)
     a, b, c = cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]
     det = a * c - b * b
     valid = valid & torch.isfinite(det) & (det > 0)
     det_s = torch.where(valid, det, torch.ones_like(det))
     conics = torch.stack([c / det_s, -b / det_s, a / det_s], dim=-1)  # (C,G,3)
     conics = torch.where(valid[..., None], conics, torch.zeros_like(conics))
-    cov2d = torch.where(valid[..., None, None], cov2d, eps2d * torch.eye(2, dtype=f64).expand_as(cov2d))
+    cov2d = torch.where(valid[..., None, None], cov2d, eps2d * torch.eye(2, dtype=f64, device=m.device).expand_as(cov2d))
 
     radii = _radii(means2d.detach(), a.detach(), c.detach(), opacities.detach().to(f64), valid, width, height)
     valid = valid & (radii > 0).all(-1)
