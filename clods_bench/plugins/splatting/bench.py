@@ -275,8 +275,8 @@ def print_bench_render(console: Console, repeats: int = 3, size: int = 128, num_
                               reference=reference)  # fmt: skip
     console.print(render_table(result))
     if "gsplat" in result:
-        console.print("gsplat projects in float32; the cpu backends project in float64 because det(cov2d) of flat "
-                      "Gaussians cancels in float32 (README: 'The gsplat backend on a GPU').")  # fmt: skip
+        console.print("backend gsplat: the float64 projection of the cpu backends on the GPU, then gsplat's float32 "
+                      "binning and compositing kernels (README: 'On a GPU').")  # fmt: skip
     if "gsplat_skipped" in result:
         console.print(f"gsplat backend not timed: {result['gsplat_skipped']}")
     return result
