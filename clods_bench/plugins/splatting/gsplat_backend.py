@@ -41,9 +41,6 @@ def gsplat_available() -> tuple[bool, str]:
     return True, ""
 
 
-available = gsplat_available  # looked up at call time (tests stand in for gsplat on a machine without it)
-
-
 def gpu_for(means: Tensor) -> torch.device:
     """The CUDA device to render on: that of `means` if it is on one, else the current one."""
     return means.device if means.device.type == "cuda" else torch.device("cuda")
@@ -66,7 +63,7 @@ def render_gsplat(
     depth_mode: str,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """rgb (C,H,W,3), alpha (C,H,W,1), depth (C,H,W,1), radii (C,G) rendered on CUDA."""
-    ok, why = available()
+    ok, why = gsplat_available()
     if not ok:
         raise ClodsError(INSTALL_HINT, where="render_gaussians(backend='gsplat')", hint=why)
     from gsplat.cuda._wrapper import isect_offset_encode, isect_tiles, rasterize_to_pixels

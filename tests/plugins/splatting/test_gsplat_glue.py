@@ -55,7 +55,7 @@ def fake_gsplat(monkeypatch):
     for name, module in (("gsplat", types.ModuleType("gsplat")), ("gsplat.cuda", types.ModuleType("gsplat.cuda")),
                          ("gsplat.cuda._wrapper", wrapper)):  # fmt: skip
         monkeypatch.setitem(sys.modules, name, module)
-    monkeypatch.setattr(gsplat_backend, "available", lambda: (True, ""))
+    monkeypatch.setattr(gsplat_backend, "gsplat_available", lambda: (True, ""))
     monkeypatch.setattr(gsplat_backend, "gpu_for", lambda means: means.device)
 
 
