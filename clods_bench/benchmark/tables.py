@@ -127,6 +127,9 @@ def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
 def _image_caption(what: str, scored: str, per_image: str, scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     seeds = sorted({len(r["seeds"]) for r in records})
     text = f"{what} ({scene}, preset {preset}); {scored}; mean ± std over {'/'.join(map(str, seeds))} seeds; {per_image} ms per image (one view, one frame)."
+    sources = sorted({src for r in records for s in r.get("per_seed", {}).values() if (src := s.get("extra", {}).get("lpips_source"))})
+    if sources:
+        text += " LPIPS: AlexNet v0.1, weights from " + " and ".join(sources) + "."
     return text + ("" if not notes else " LPIPS unavailable: " + "; ".join(notes) + ".")
 
 

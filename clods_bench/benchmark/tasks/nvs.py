@@ -173,6 +173,8 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "render_ms_per_frame": 1000.0 * render_seconds / max(images, 1),
         "render_seconds": render_seconds,
     }
+    if metric is not None:
+        timings["lpips_seconds"] = metric.seconds
     for key in sorted({k for s in fit_stats for k in s}):
         timings[f"fit/{key}"] = float(np.mean([float(s[key]) for s in fit_stats if key in s]))
     shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
@@ -188,6 +190,8 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "images": images,
         "per_trajectory": per_traj,
         "lpips_unavailable": lpips.reason if isinstance(lpips, LpipsUnavailable) else None,
+        "lpips_source": metric.source if metric is not None else None,
+        "lpips_files": [str(f) for f in metric.files] if metric is not None else [],
         "grid": str(grid_path) if grid_path else None,
     }
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
