@@ -54,6 +54,11 @@ def cdg_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
                     row[(GROUP_NAMES[g], PHASE_NAMES[p], names[s])] = fmt_cell(mean, std, diverged=div)
                     num[f"{g}/{p}/{s}/mean"] = mean
                     num[f"{g}/{p}/{s}/std"] = std
+        strain = rec["metrics"].get("max_strain") or {}
+        s_mean = float("nan") if strain.get("mean") is None else strain["mean"]
+        s_std = float("nan") if strain.get("std") is None else strain["std"]
+        row[("Stability", "", "max edge strain")] = fmt_cell(s_mean, s_std, digits=3) if math.isfinite(s_mean) else "n/a"
+        num["max_strain/mean"], num["max_strain/std"] = s_mean, s_std
         t = rec["timings"]
         infer = t.get("infer_ms_per_step", {}).get("mean", float("nan"))
         fit = t.get("fit_seconds", {}).get("mean", float("nan"))

@@ -19,14 +19,30 @@ from clods_bench.plugins.simulators.baselines import ConstantVelocity
 from tests.conftest import tiny_config
 
 
-def _independent_constvel_rmse(world_pos: np.ndarray, node_type: np.ndarray) -> np.ndarray:
-    """Constant-velocity rollout and per-frame RMSE written out longhand."""
+def _independent_constvel(world_pos: np.ndarray, node_type: np.ndarray) -> np.ndarray:
+    """Constant-velocity rollout written out longhand."""
     pred = world_pos.astype(np.float64).copy()
     free = node_type == NORMAL
     for t in range(2, len(pred)):
         pred[t, free] = pred[t - 1, free] + (pred[t - 1, free] - pred[t - 2, free])
-    err = pred - world_pos
+    return pred
+
+
+def _independent_constvel_rmse(world_pos: np.ndarray, node_type: np.ndarray) -> np.ndarray:
+    """Per-frame RMSE of the longhand constant-velocity rollout."""
+    err = _independent_constvel(world_pos, node_type) - world_pos
     return np.array([np.sqrt((e**2).sum() / e.size) for e in err])
+
+
+def _independent_max_strain(traj: Trajectory) -> float:
+    """Largest |l/l0 - 1| over the triangle edges of the constant-velocity rollout; a flag's rest lengths are its mesh_pos lengths."""
+    pred = _independent_constvel(traj.world_pos, traj.node_type)
+    worst = 0.0
+    for a, b, c in traj.cells:
+        for i, j in ((a, b), (b, c), (c, a)):
+            rest = np.linalg.norm(traj.mesh_pos[i].astype(np.float64) - traj.mesh_pos[j])
+            worst = max(worst, float(np.max(np.abs(np.linalg.norm(pred[:, i] - pred[:, j], axis=1) / rest - 1.0))))
+    return worst
 
 
 def test_constvel_cdg_matches_independent_numbers(tiny_root: Path, tmp_path: Path) -> None:
@@ -42,6 +58,8 @@ def test_constvel_cdg_matches_independent_numbers(tiny_root: Path, tmp_path: Pat
         assert rec["metrics"][f"{group}/interp/d_end"]["mean"] == pytest.approx(curves[:, 8].mean(), rel=1e-5)
         assert rec["metrics"][f"{group}/extrap/d_avg"]["mean"] == pytest.approx(curves[:, 9:12].mean(), rel=1e-5)
         assert rec["metrics"][f"{group}/extrap/d_end"]["mean"] == pytest.approx(curves[:, 11].mean(), rel=1e-5)
+    strain = max(_independent_max_strain(t) for t in viewed + unviewed)
+    assert rec["metrics"]["max_strain"]["mean"] == pytest.approx(strain, rel=1e-5) and strain > 0.01  # constvel stretches the flag
     assert (rdir / "config.yaml").is_file()
     assert rec["versions"]["numpy"] and "data_seconds" in rec["run_timings"]
 
