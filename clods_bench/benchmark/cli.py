@@ -37,7 +37,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = dsub.add_parser("generate", help="simulate and render a scene's dataset (resumable)")
     _add_config_args(p)
     p.add_argument("--force", action="store_true", help="delete an existing dataset with these settings first")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="generate the trajectories here (default) or as Ray tasks")
+    p.add_argument("--jobs", type=int, default=1, help="local executor: trajectories generated in this many worker processes (default 1)")
+    p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     p.set_defaults(func=cmd_data_generate)
+    p = dsub.add_parser("convert", help="convert a dataset of an older clods-bench (store schema 1, raw .npy frames) in place")
+    p.add_argument("root", type=Path, help="a dataset directory, or a data root holding dataset directories")
+    p.set_defaults(func=cmd_data_convert)
     p = dsub.add_parser("import-flagsimple", help="convert the real FLAGSIMPLE release (meta.json + TFRecord)")
     p.add_argument("source", type=Path, help="directory with meta.json and <split>.tfrecord")
     p.add_argument("--split", default="train")
@@ -104,9 +110,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim"),
+    p.add_argument("what", choices=("data", "render", "sim", "store"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
-                        "sim: train/inference step time of each simulator vs the physics solver")  # fmt: skip
+                        "sim: train/inference step time of each simulator vs the physics solver; "
+                        "store: frame store bytes and read speed vs raw .npy")  # fmt: skip
+    p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured (default: ci)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store: config override, e.g. data.root=DIR")
+    p.add_argument("--blocks", type=int, default=None,
+                   help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
+                        "and extrapolate the bytes (default: every frame)")  # fmt: skip
     p.add_argument("--steps", type=int, default=400, help="data: solver steps to time")
     p.add_argument("--views", type=int, default=8, help="data/render: views to render")
     p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
@@ -155,12 +167,28 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_data_generate(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.executors import make_executor
     from clods_bench.datasets.generate import generate
 
     cfg = _config(args)
     scene = _registry().get("scene", cfg.data.scene)
-    store = generate(cfg.data, scene, progress=cfg.progress, force=args.force)
+    executor = None if args.executor == "local" and args.jobs == 1 else make_executor(args.executor, args.ray_address, args.jobs)
+    store = generate(cfg.data, scene, progress=cfg.progress, force=args.force, executor=executor)
     console.print(f"dataset: {store.root} ({len(store)} trajectories)")
+    return 0
+
+
+def cmd_data_convert(args: argparse.Namespace) -> int:
+    from clods_bench.datasets.convert import convert_tree
+
+    for done in convert_tree(args.root):
+        if done.already:
+            note = f", removed {done.npy_bytes / 1e6:.1f} MB of leftover .npy" if done.npy_bytes else ""
+            console.print(f"{done.root}: already in the current layout{note}")
+        else:
+            ratio = done.npy_bytes / done.stored_bytes if done.stored_bytes else float("nan")
+            console.print(f"{done.root}: converted {done.trajectories} trajectories, frames {done.npy_bytes / 1e6:.1f} MB "
+                          f"(.npy) -> {done.stored_bytes / 1e6:.1f} MB ({ratio:.1f}x smaller)")  # fmt: skip
     return 0
 
 
@@ -322,6 +350,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from clods_bench.benchmark.bench import bench_data
 
         bench_data(console, steps=args.steps, views=args.views)
+    elif args.what == "store":
+        from clods_bench.benchmark.config import load_config
+        from clods_bench.datasets.store_bench import print_bench_store
+
+        cfg = load_config(args.preset, None, list(args.overrides))
+        print_bench_store(console, cfg, _registry().get("scene", cfg.data.scene), blocks=args.blocks)
     elif args.what == "render":
         from clods_bench.plugins.splatting.bench import print_bench_render
 

@@ -38,8 +38,9 @@ class SeedJob:
     name: str
 
 
-def ensure_complete_dataset(cfg: RunConfig, registry: Any, progress: bool = True) -> Any:
-    """The run's dataset: opened as is when every trajectory is complete (the dataset dir is a hash of its settings), else generated."""
+def ensure_complete_dataset(cfg: RunConfig, registry: Any, progress: bool = True, executor: Any = None) -> Any:
+    """The run's dataset: opened as is when every trajectory is complete (the dataset dir is a hash of its settings), else
+    generated (its trajectories in parallel through `executor`, if given)."""
     from clods_bench.datasets.generate import ensure_dataset
     from clods_bench.datasets.store import DatasetStore
 
@@ -51,7 +52,7 @@ def ensure_complete_dataset(cfg: RunConfig, registry: Any, progress: bool = True
             store = None
         if store is not None and set(range(cfg.data.num_train + cfg.data.num_test)) <= store.completed_indices():
             return store
-    return ensure_dataset(cfg, registry, progress)
+    return ensure_dataset(cfg, registry, progress, executor=executor)
 
 
 def run_seed_job(job: SeedJob) -> dict[str, Any]:
@@ -202,7 +203,7 @@ def run_configs(
 ) -> list[dict[str, Any]]:
     """Run every (name, config) over its seeds through `executor`; aggregate each run here; return one summary per run.
 
-    Datasets are generated first, here, once per distinct data config (workers must not race on them).
+    Datasets are generated first, once per distinct data config, their trajectories in parallel through `executor`.
     Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run.
     """
     from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task
@@ -210,17 +211,17 @@ def run_configs(
     for name, cfg in configs:
         check_plugins(cfg, registry)
     configs = [(name, resolve_plugin_configs(absolute_paths(cfg), registry)) for name, cfg in configs]
+    parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     seen: set[Path] = set()
     for name, cfg in configs:
         ddir = cfg.data.dataset_dir()
         if ddir not in seen:
             seen.add(ddir)
             console.print(f"[dim]dataset {ddir}[/dim]")
-            ensure_complete_dataset(cfg, registry, cfg.progress)
+            ensure_complete_dataset(cfg, registry, cfg.progress, executor=executor if parallel else None)
 
     # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
     # runs together instead of two seeds of one run that would wait on each other's shared cached stages.
-    parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     jobs = []
     depth = max((len(cfg.seeds) for _, cfg in configs), default=0)
     for k in range(depth):

@@ -2,6 +2,11 @@
 
 Resumable and atomic: each trajectory's files are written whole and only then listed in
 the manifest, so an interrupted generation resumes at the first unlisted trajectory.
+Trajectories are independent (trajectory i is drawn from seed `data.seed + i`), so they can be
+generated in parallel through an executor (`--jobs N` processes or Ray tasks): each worker writes
+its own trajectory's files and adds its manifest entry under the manifest's file lock; the bytes
+written do not depend on the number of workers. Frames are rendered and stored a time chunk at
+a time, so a paper-size trajectory (23 GB of raw frames) never has to fit in memory.
 """
 
 from __future__ import annotations
@@ -9,13 +14,15 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from clods_bench.benchmark.config import DataConfig
+from clods_bench.atomic import file_lock
+from clods_bench.benchmark.config import DataConfig, dataclass_from_dict
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
 from clods_bench.datasets.scenes import SceneSpec, simulate_scene
@@ -60,14 +67,23 @@ def make_texture(d: DataConfig) -> np.ndarray:
     return load_texture(Path(d.texture))
 
 
+def render_steps(
+    traj: Trajectory, uv: np.ndarray, texture: np.ndarray, cameras: list[Camera], settings: RasterSettings,
+    times: Sequence[int] | None = None,
+) -> Iterator[np.ndarray]:  # fmt: skip
+    """The (N, H, W, 3) uint8 images of each step (or of the steps `times`) from every camera, one step at a time."""
+    for t in range(traj.num_steps) if times is None else times:
+        imgs = render_views(traj.world_pos[t], traj.cells, uv, texture, cameras, settings)
+        yield np.clip(np.rint(imgs * 255.0), 0, 255).astype(np.uint8)
+
+
 def render_trajectory(
     traj: Trajectory, uv: np.ndarray, texture: np.ndarray, cameras: list[Camera], settings: RasterSettings
 ) -> np.ndarray:
     """(T, N, H, W, 3) uint8 frames of every step from every camera."""
     frames = np.empty((traj.num_steps, len(cameras), cameras[0].height, cameras[0].width, 3), dtype=np.uint8)
-    for t in range(traj.num_steps):
-        imgs = render_views(traj.world_pos[t], traj.cells, uv, texture, cameras, settings)
-        frames[t] = np.clip(np.rint(imgs * 255.0), 0, 255).astype(np.uint8)
+    for t, step in enumerate(render_steps(traj, uv, texture, cameras, settings)):
+        frames[t] = step
     return frames
 
 
@@ -80,8 +96,56 @@ def scene_fingerprint(scene: SceneSpec) -> str:
     return hashlib.sha256(json.dumps(fields, sort_keys=True, default=repr).encode()).hexdigest()[:16]
 
 
-def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool = False) -> DatasetStore:
-    """Generate (or finish generating) the dataset described by `d` in `d.dataset_dir()`."""
+@dataclass(frozen=True)
+class TrajectoryJob:
+    """One trajectory to generate: the data config (a dict, absolute root), the scene, the index."""
+
+    data: dict[str, Any]
+    scene: SceneSpec
+    index: int
+
+
+@dataclass
+class _Setup:
+    """What every trajectory of a dataset shares: mesh, cameras, texture, raster settings (built once per process)."""
+
+    mesh: ClothMesh
+    cameras: list[Camera]
+    texture: np.ndarray
+    settings: RasterSettings
+
+
+_SETUPS: dict[str, _Setup] = {}
+
+
+def _setup(d: DataConfig, scene: SceneSpec) -> _Setup:
+    key = json.dumps([d.identity(), scene_fingerprint(scene)], sort_keys=True, default=repr)
+    if key not in _SETUPS:
+        mesh = scene.build_mesh(resolution_of(d))
+        settings = RasterSettings(supersample=d.supersample, light=LIGHT if scene.has_lighting else None)
+        _SETUPS.clear()  # one dataset at a time: keep memory flat
+        _SETUPS[key] = _Setup(mesh, make_cameras(d, mesh), make_texture(d), settings)
+    return _SETUPS[key]
+
+
+def generate_trajectory(job: TrajectoryJob) -> int:
+    """Simulate, render and store trajectory `job.index` (in whatever process runs it); return the index."""
+    d = dataclass_from_dict(DataConfig, dict(job.data), where="data", prefix="data.")
+    s = _setup(d, job.scene)
+    i = job.index
+    seed = d.seed + i
+    traj = simulate_scene(job.scene, s.mesh, d.num_steps, seed)
+    frames = render_steps(traj, s.mesh.texture_uv(), s.texture, s.cameras, s.settings) if d.render_frames else None
+    DatasetStore.open(d.dataset_dir()).write_trajectory(i, "train" if i < d.num_train else "test", seed, traj, frames)
+    return i
+
+
+def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool = False, executor: Any = None) -> DatasetStore:
+    """Generate (or finish generating) the dataset described by `d` in `d.dataset_dir()`.
+
+    `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.executors`) generates the
+    missing trajectories in parallel; None generates them here, one after another.
+    """
     for name in ("num_train", "num_test"):
         if getattr(d, name) < (2 if name == "num_train" else 1):
             raise ClodsError(f"{name} is {getattr(d, name)}, too small", where=f"data.{name}")
@@ -90,36 +154,34 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
             f"interp_steps={d.interp_steps} must satisfy 2 <= interp_steps < num_steps - 1 = {d.num_steps - 1}",
             where="data.interp_steps",
         )
+    d = dataclasses.replace(d, root=str(Path(d.root).resolve()))  # workers may start in another directory
     root = d.dataset_dir()
-    mesh = scene.build_mesh(resolution_of(d))
-    cameras = make_cameras(d, mesh)
-    if force and root.exists():
-        import shutil
+    with file_lock(root.parent / f".{root.name}.lock"):  # another generation of the same dataset: wait for it
+        if force and root.exists():
+            import shutil
 
-        shutil.rmtree(root)
-    store = DatasetStore.create(root, d.scene, {**d.identity(), "scene_spec": scene_fingerprint(scene)}, cameras)
-    texture = make_texture(d)
-    if d.render_frames and not (root / TEXTURE_FILE).exists():
-        save_texture(root / TEXTURE_FILE, texture)
-    settings = RasterSettings(supersample=d.supersample, light=LIGHT if scene.has_lighting else None)
-    uv = mesh.texture_uv()
-    total = d.num_train + d.num_test
-    todo = [i for i in range(total) if i not in store.completed_indices()]
-    if not todo:
-        return store
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
-    with Progress(*columns, disable=not progress) as bar:
-        job = bar.add_task(f"generating {d.scene} -> {root}", total=total, completed=total - len(todo))
-        for i in todo:
-            seed = d.seed + i
-            traj = simulate_scene(scene, mesh, d.num_steps, seed)
-            frames = render_trajectory(traj, uv, texture, cameras, settings) if d.render_frames else None
-            store.write_trajectory(i, "train" if i < d.num_train else "test", seed, traj, frames)
-            bar.advance(job)
-    return store
+            shutil.rmtree(root)
+        setup = _setup(d, scene)
+        store = DatasetStore.create(root, d.scene, {**d.identity(), "scene_spec": scene_fingerprint(scene)}, setup.cameras)
+        if d.render_frames and not (root / TEXTURE_FILE).exists():
+            save_texture(root / TEXTURE_FILE, setup.texture)
+        total = d.num_train + d.num_test
+        jobs = [TrajectoryJob(dataclasses.asdict(d), scene, i) for i in range(total) if i not in store.completed_indices()]
+        if not jobs:
+            return store
+        if executor is not None:
+            executor.map(generate_trajectory, jobs, describe=lambda j: f"{d.scene} trajectory {j.index}", progress=progress)
+            return DatasetStore.open(root)
+        columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
+        with Progress(*columns, disable=not progress) as bar:
+            task = bar.add_task(f"generating {d.scene} -> {root}", total=total, completed=total - len(jobs))
+            for job in jobs:
+                generate_trajectory(job)
+                bar.advance(task)
+        return DatasetStore.open(root)
 
 
-def ensure_dataset(cfg: "RunConfig", registry: "Registry", progress: bool = True) -> Any:
-    """Open the run's dataset, generating whatever part of it is missing."""
+def ensure_dataset(cfg: "RunConfig", registry: "Registry", progress: bool = True, executor: Any = None) -> Any:
+    """Open the run's dataset, generating whatever part of it is missing (in parallel through `executor`, if given)."""
     scene = registry.get("scene", cfg.data.scene)
-    return generate(cfg.data, scene, progress=progress)
+    return generate(cfg.data, scene, progress=progress, executor=executor)

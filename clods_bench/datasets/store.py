@@ -1,33 +1,39 @@
-"""The on-disk dataset: a manifest plus one .npz (mesh trajectory) and one .npy (frames) per trajectory.
+"""The on-disk dataset: a manifest plus one .npz (mesh trajectory) and one frame array per trajectory.
 
-Layout of `root`:
+Layout of `root` (schema version 2):
 - `manifest.json`: schema version, scene, the data config, cameras, texture, and one entry per
-  *complete* trajectory (index, split, seed, file names with sha256 and byte size, array shapes);
+  *complete* trajectory (index, split, seed, file records with sha256 and byte size, array shapes);
 - `traj_0000.npz`: cells, mesh_pos, node_type, world_pos, dt and `meta` (a JSON string);
-- `frames_0000.npy`: (T, N, H, W, 3) uint8 multi-view frames, memory-mappable;
+- `frames_0000.zarr/`: (T, N, H, W, 3) uint8 multi-view frames, chunked per camera and a few frames,
+  compressed and checksummed per chunk (see `frame_store`), read lazily with `frames(index)`;
 - `texture.png` (optional).
 Files are written atomically before their manifest entry, so an interrupted generation leaves
-no entry for a half-written trajectory and a later run resumes from `completed_indices()`.
+no entry for a half-written trajectory and a later run resumes from `completed_indices()`. The
+manifest is re-read and rewritten under a file lock, so parallel workers can each add their own
+trajectory. Schema 1 stores (raw `frames_0000.npy`) are refused with a pointer to `clods-bench data convert`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
-from clods_bench.atomic import _jsonable, atomic_path, write_json, write_npz
+from clods_bench.atomic import _jsonable, atomic_path, file_lock, write_json, write_npz
 from clods_bench.datasets.cameras import Camera
+from clods_bench.datasets.frame_store import LazyFrames, write_frames
 from clods_bench.datasets.splits import SPLITS
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MANIFEST = "manifest.json"
+MANIFEST_LOCK = ".manifest.lock"
 TRAJ_FIELDS = ("cells", "mesh_pos", "node_type", "world_pos")
 _DTYPES = {"cells": np.int32, "mesh_pos": np.float32, "node_type": np.int32, "world_pos": np.float32}
 _LOAD_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, json.JSONDecodeError)
@@ -86,36 +92,40 @@ class DatasetStore:
 
     # ------------------------------------------------------------------ write
 
-    def write_trajectory(self, index: int, split: str, seed: int, traj: Trajectory, frames: np.ndarray | None) -> None:
-        """Write one trajectory's files atomically, then record its entry in the manifest."""
+    def write_trajectory(self, index: int, split: str, seed: int, traj: Trajectory,
+                         frames: np.ndarray | Iterable[np.ndarray] | None) -> None:  # fmt: skip
+        """Write one trajectory's files atomically, then record its entry in the manifest.
+
+        `frames`: (T, N, H, W, 3) uint8, or an iterable of the T time steps' (N, H, W, 3) images (streamed
+        to disk a chunk at a time, so a large trajectory never has to be in memory whole).
+        """
         if split not in SPLITS:
             raise ClodsError(f"unknown split '{split}', expected one of {SPLITS}", where=f"trajectory {index}")
         if index < 0:
             raise ClodsError(f"trajectory index must be >= 0, got {index}", where=f"trajectory {index}")
         traj.validate(where=f"trajectory {index}")
         arrays = {k: np.ascontiguousarray(getattr(traj, k), dtype=_DTYPES[k]) for k in TRAJ_FIELDS}
-        if frames is not None:
+        if isinstance(frames, np.ndarray):
             self._check_frames(index, frames, traj.num_steps)
         if index in self._entries:  # drop the old entry first: its files are about to change
-            del self._entries[index]
-            self._save_manifest()
+            self._update_manifest(lambda: self._entries.pop(index, None))
         traj_name = f"traj_{index:04d}.npz"
         write_npz(self.root / traj_name, dt=np.float64(traj.dt), meta=np.str_(json.dumps(_normalise(traj.meta))), **arrays)
         files = {"traj": _file_record(self.root / traj_name)}
         shapes = {k: list(v.shape) for k, v in arrays.items()}
         if frames is not None:
-            frames_name = f"frames_{index:04d}.npy"
-            files["frames"] = _save_npy(self.root / frames_name, np.ascontiguousarray(frames))
-            shapes["frames"] = list(frames.shape)
-        self._entries[index] = {"index": index, "split": split, "seed": int(seed), "files": files, "shapes": shapes, "complete": True}
-        self._save_manifest()
+            shape = self._frames_shape(traj.num_steps)
+            files["frames"] = write_frames(self.root / f"frames_{index:04d}.zarr", frames, shape)
+            shapes["frames"] = list(shape)
+        entry = {"index": index, "split": split, "seed": int(seed), "files": files, "shapes": shapes, "complete": True}
+        self._update_manifest(lambda: self._entries.__setitem__(index, entry))
 
     def write_texture(self, data: bytes, name: str = "texture.png") -> None:
         """Store the texture image file (already encoded bytes) and record it in the manifest."""
         with atomic_path(self.root / name) as tmp:
             tmp.write_bytes(data)
-        self._manifest["texture"] = {"name": name, **_digest_record(self.root / name)}
-        self._save_manifest()
+        record = {"name": name, **_digest_record(self.root / name)}
+        self._update_manifest(lambda: self._manifest.__setitem__("texture", record))
 
     # ------------------------------------------------------------------- read
 
@@ -143,21 +153,26 @@ class DatasetStore:
         traj.validate(where=str(path))
         return traj
 
-    def load_frames(self, index: int, mmap: bool = True, verify: bool = False) -> np.ndarray:
-        """Frames (T, N, H, W, 3) uint8 of trajectory `index`, memory-mapped read-only by default."""
+    def frames(self, index: int) -> LazyFrames:
+        """Frames (T, N, H, W, 3) uint8 of trajectory `index`, read lazily: `frames(i)[t0:t1, views]` decodes only those chunks."""
         entry = self._entry(index)
         if "frames" not in entry["files"]:
             raise ClodsError(f"trajectory {index} was stored without frames", where=str(self.root / MANIFEST),
                              hint="regenerate the dataset with render_frames on")
-        path = self._checked_file(entry["files"]["frames"], verify)
-        try:
-            frames = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
-        except _LOAD_ERRORS as exc:
-            raise ClodsError(f"cannot read frames file: {type(exc).__name__}: {exc}", where=str(path)) from None
+        record = entry["files"]["frames"]
+        frames = LazyFrames(self.root / record["name"], record)
         expected = tuple(entry["shapes"]["frames"])
-        if frames.shape != expected or frames.dtype != np.uint8:
-            raise ClodsError(f"frames {frames.shape} {frames.dtype}, manifest says {expected} uint8", where=str(path))
+        if frames.shape != expected:
+            raise ClodsError(f"frames {frames.shape}, manifest says {expected}", where=str(frames.path))
         return frames
+
+    def load_frames(self, index: int, mmap: bool = True, verify: bool = False) -> np.ndarray:
+        """All frames (T, N, H, W, 3) uint8 of trajectory `index`, decoded into memory (`mmap` is ignored since
+        schema 2: the frames are compressed; use `frames(index)` to read only some views or frames)."""
+        frames = self.frames(index)
+        if verify:
+            frames.verify()
+        return frames.read(slice(None), slice(None))
 
     def verify(self) -> None:
         """Check every file (size, sha256, shapes, values); one ClodsError listing all problems."""
@@ -167,7 +182,7 @@ class DatasetStore:
         for index, entry in sorted(self._entries.items()):
             checks.append(lambda i=index: self.load_trajectory(i, verify=True))
             if "frames" in entry["files"]:
-                checks.append(lambda i=index: self.load_frames(i, mmap=True, verify=True))
+                checks.append(lambda i=index: self._verify_frames(i))
         for check in checks:
             try:
                 check()
@@ -250,6 +265,30 @@ class DatasetStore:
             if frames.shape[2:4] != (cam["height"], cam["width"]):
                 raise ClodsError(f"image size {frames.shape[2:4]} but camera {n} is {cam['height']}x{cam['width']}", where=where)
 
+    def _verify_frames(self, index: int) -> None:
+        """Every chunk of trajectory `index`'s frames decodes and passes its checksum; the byte total matches."""
+        frames = self.frames(index)
+        frames.verify()
+        record = self._entry(index)["files"]["frames"]
+        size = sum(p.stat().st_size for p in frames.path.iterdir() if p.is_file())
+        if size != record["bytes"]:
+            raise ClodsError(f"frame array holds {size} bytes, manifest says {record['bytes']}", where=str(frames.path))
+
+    def _frames_shape(self, num_steps: int) -> tuple[int, ...]:
+        cams = self._manifest["cameras"]
+        if not cams:
+            raise ClodsError("frames given but the dataset has no cameras", where=str(self.root / MANIFEST))
+        return (int(num_steps), len(cams), int(cams[0]["height"]), int(cams[0]["width"]), 3)
+
+    def _update_manifest(self, change: Any) -> None:
+        """Re-read the manifest under the lock (parallel writers add their own entries), apply `change()`, save."""
+        with file_lock(self.root / MANIFEST_LOCK):
+            if (self.root / MANIFEST).is_file():
+                self._manifest = _read_manifest(self.root)
+                self._entries = {int(e["index"]): e for e in self._manifest["trajectories"]}
+            change()
+            self._save_manifest()
+
     def _save_manifest(self) -> None:
         self._manifest["trajectories"] = [self._entries[i] for i in sorted(self._entries)]
         write_json(self.root / MANIFEST, self._manifest)
@@ -259,7 +298,11 @@ class DatasetStore:
         if self._manifest.get("texture"):
             names.append(self._manifest["texture"]["name"])
         for name in names:
-            (self.root / name).unlink(missing_ok=True)
+            path = self.root / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------ helpers
@@ -307,6 +350,11 @@ def _check_manifest(m: Any, where: str) -> None:
     if not isinstance(m, dict):
         raise ClodsError(f"expected a JSON object, got {type(m).__name__}", where=where)
     version = m.get("schema_version")
+    if version == 1:
+        root = Path(where).parent
+        raise ClodsError(f"dataset stored in schema version 1 (one raw .npy of frames per trajectory); this clods-bench reads "
+                         f"version {SCHEMA_VERSION} (chunked, compressed frames)", where=where,
+                         hint=f"convert it in place, nothing is regenerated: clods-bench data convert {root}")  # fmt: skip
     if version != SCHEMA_VERSION:
         raise ClodsError(f"manifest schema version {version!r}, this clods-bench reads version {SCHEMA_VERSION}",
                          where=f"{where}.schema_version", hint="regenerate the dataset (new directory or --force)")
@@ -336,30 +384,12 @@ def _file_record(path: Path) -> dict[str, Any]:
     return {"name": path.name, **_digest_record(path)}
 
 
-class _HashingWriter:
-    """File wrapper that hashes and counts what np.save writes (no second pass over large frames)."""
-
-    def __init__(self, fh: Any) -> None:
-        self.fh, self.sha, self.size = fh, hashlib.sha256(), 0
-
-    def write(self, data: bytes) -> int:
-        self.sha.update(data)
-        self.size += len(data)
-        return self.fh.write(data)
-
-
-def _save_npy(path: Path, arr: np.ndarray) -> dict[str, Any]:
-    """np.save atomically, returning the file record (name, sha256, bytes)."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            w = _HashingWriter(fh)
-            np.lib.format.write_array(w, arr, allow_pickle=False)
-    return {"name": path.name, "sha256": w.sha.hexdigest(), "bytes": w.size}
-
-
 def _remove_stale_temp_files(root: Path) -> None:
-    """Delete temp files an interrupted writer left behind (atomic.py names them '.<target>.*.tmp*')."""
+    """Delete temp files and frame directories an interrupted writer left behind ('.<target>.*.tmp*')."""
     if root.is_dir():
         for p in root.iterdir():
             if p.name.startswith((".traj_", ".frames_", f".{MANIFEST}.", ".texture")) and ".tmp" in p.name:
-                p.unlink(missing_ok=True)
+                if p.is_dir():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)

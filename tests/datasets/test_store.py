@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -59,12 +60,13 @@ def test_round_trip(tmp_path):
         assert got.world_pos.dtype == np.float32 and got.cells.dtype == np.int32
         assert got.dt == 0.02 and got.meta == ref.meta
         frames = again.load_frames(i)
-        assert isinstance(frames, np.memmap) and frames.dtype == np.uint8
+        assert type(frames) is np.ndarray and frames.dtype == np.uint8
         np.testing.assert_array_equal(frames, make_frames(i))
-        assert not isinstance(again.load_frames(i, mmap=False), np.memmap)
+        np.testing.assert_array_equal(again.frames(i)[1:4, [2, 0]], make_frames(i)[1:4, [2, 0]])
     entry = json.loads((tmp_path / "ds" / "manifest.json").read_text())["trajectories"][1]
     assert entry["seed"] == 101 and entry["complete"] is True and entry["shapes"]["frames"] == [T, 3, H, W, 3]
-    assert entry["files"]["frames"]["bytes"] == (tmp_path / "ds" / "frames_0001.npy").stat().st_size
+    array_dir = tmp_path / "ds" / "frames_0001.zarr"
+    assert entry["files"]["frames"]["bytes"] == sum(p.stat().st_size for p in array_dir.iterdir())
     again.verify()
     assert store.texture_path() is None
     store.write_texture(b"\x89PNG fake")
@@ -119,10 +121,13 @@ def test_crash_after_files_before_manifest(tmp_path, monkeypatch):
 
 def test_stale_temp_files_removed_on_resume(tmp_path):
     new_store(tmp_path, 1)
-    stale = tmp_path / "ds" / ".frames_0001.npy.abc123.tmp.npy"
+    stale = tmp_path / "ds" / ".traj_0001.npz.abc123.tmp.npz"
     stale.write_bytes(b"half")
+    stale_dir = tmp_path / "ds" / ".frames_0001.zarr.abc123.tmp"
+    stale_dir.mkdir()
+    (stale_dir / "c.0.0.0.0.0").write_bytes(b"half")
     DatasetStore.create(tmp_path / "ds", "flag", CONFIG, cams())
-    assert not stale.exists()
+    assert not stale.exists() and not stale_dir.exists()
 
 
 def test_rewrite_index_replaces_entry(tmp_path):
@@ -134,7 +139,7 @@ def test_rewrite_index_replaces_entry(tmp_path):
 
 def test_truncated_file(tmp_path):
     store = new_store(tmp_path, 1)
-    for name, load in (("traj_0000.npz", store.load_trajectory), ("frames_0000.npy", store.load_frames)):
+    for name, load in (("traj_0000.npz", store.load_trajectory),):  # truncated frame chunks: test_frame_store.py
         path = tmp_path / "ds" / name
         data = path.read_bytes()
         path.write_bytes(data[: len(data) // 2])
@@ -145,11 +150,11 @@ def test_truncated_file(tmp_path):
 
 def test_missing_file(tmp_path):
     store = new_store(tmp_path, 1)
-    (tmp_path / "ds" / "frames_0000.npy").unlink()
+    shutil.rmtree(tmp_path / "ds" / "frames_0000.zarr")
     with pytest.raises(ClodsError, match="missing") as info:
         store.load_frames(0)
-    assert "frames_0000.npy" in str(info.value)
-    with pytest.raises(ClodsError, match="frames_0000.npy"):
+    assert "frames_0000.zarr" in str(info.value)
+    with pytest.raises(ClodsError, match="frames_0000.zarr"):
         store.verify()
 
 
@@ -163,10 +168,13 @@ def test_corrupt_content_same_size(tmp_path):
     with pytest.raises(ClodsError, match="cannot read trajectory file") as info:
         store.load_trajectory(0)
     assert "traj_0000.npz" in str(info.value)
-    frames = tmp_path / "ds" / "frames_0000.npy"
-    frames.write_bytes(b"\0" * frames.stat().st_size)
-    with pytest.raises(ClodsError, match="cannot read frames file"):
+    chunk = tmp_path / "ds" / "frames_0000.zarr" / "c.0.1.0.0.0"
+    chunk.write_bytes(b"\0" * chunk.stat().st_size)
+    with pytest.raises(ClodsError, match="crc32c") as info:
         store.load_frames(0)
+    assert str(chunk) in str(info.value)
+    with pytest.raises(ClodsError, match="c.0.1.0.0.0"):
+        store.verify()
 
 
 def test_missing_and_malformed_manifest(tmp_path):
@@ -262,11 +270,11 @@ def test_config_mismatch(tmp_path):
 
 def test_verify_reports_every_problem(tmp_path):
     store = new_store(tmp_path, 2)
-    for name in ("traj_0000.npz", "frames_0001.npy"):
+    for name in ("traj_0000.npz", "frames_0001.zarr/c.0.2.0.0.0"):
         p = tmp_path / "ds" / name
         data = bytearray(p.read_bytes())
         data[-10] ^= 0xFF
         p.write_bytes(bytes(data))
     with pytest.raises(ClodsError, match="2 problem") as info:
         store.verify()
-    assert "traj_0000.npz" in str(info.value) and "frames_0001.npy" in str(info.value)
+    assert "traj_0000.npz" in str(info.value) and "frames_0001.zarr/c.0.2.0.0.0" in str(info.value)

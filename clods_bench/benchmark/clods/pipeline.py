@@ -95,7 +95,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
     frames = splits.interp_steps + 1
     seed = extraction_seed(ctx, opts)
     gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
-    videos = [np.asarray(store.load_frames(i)[:frames, views]) for i in train_ids]
+    videos = [store.frames(i)[:frames, views] for i in train_ids]  # decodes only these cameras' first frames
     initial = np.stack([initial_mesh(g.world_pos[0], opts, seed, i) for g, i in zip(gts, train_ids)])
 
     renderer, stats, stage1_key = fit_stage1_keyed(ctx, initial, gts[0].cells, gts[0].mesh_pos, np.stack([v[0] for v in videos]), cams)

@@ -201,7 +201,7 @@ def _run_predictor(
     cfg = ctx.config
     observed = future[0]  # frames 0..observed-1 are given
     pred = build_predictor(ctx)
-    clips = {i: _float(store.load_frames(i)[:, views]).transpose(1, 0, 2, 3, 4) for i in traj_ids}  # (N,T,H,W,3)
+    clips = {i: _float(store.frames(i)[:, views]).transpose(1, 0, 2, 3, 4) for i in traj_ids}  # (N,T,H,W,3), scored views only
     train = [clip[v, :observed] for clip in clips.values() for v in range(len(views))]
     t0 = time.perf_counter()
     stats = pred.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress)) or {}
@@ -310,7 +310,7 @@ def _run_simulator(
     sim, timings, mode, extracted = _train_simulator(ctx, opts)
     trajs = {i: store.load_trajectory(i) for i in traj_ids}
     t0 = time.perf_counter()
-    renderer, render_stats = _fit_renderer(ctx, list(trajs.values()), np.stack([_float(store.load_frames(i)[0, train_views]) for i in traj_ids]), train_cams)
+    renderer, render_stats = _fit_renderer(ctx, list(trajs.values()), np.stack([_float(store.frames(i)[0, train_views]) for i in traj_ids]), train_cams)
     render_fit = time.perf_counter() - t0
     timings.update({f"render_fit/{k}": float(v) for k, v in render_stats.items()})
     render_s, rollout_s, rendered, steps = 0.0, 0.0, 0, 0
@@ -319,7 +319,7 @@ def _run_simulator(
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"dvc ({cfg.sim}+{cfg.renderer})", total=len(traj_ids) * (splits.num_steps - 1))
         for i, traj in trajs.items():
-            clip = _float(store.load_frames(i))  # (T,V,H,W,3)
+            clip = _float(store.frames(i)[:, views])  # (T,V,H,W,3), the scored views only
             inp, observed = _rollout_input(traj, opts, extracted, i, splits)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
@@ -339,11 +339,11 @@ def _run_simulator(
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)
                 img = _as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
-                scores.add(i, t, img, clip[t, views])
+                scores.add(i, t, img, clip[t])
                 frames.append(img)
                 bar.advance(job)
             pred = np.stack(frames, axis=1)  # (N,T-1,H,W,3), frames 1..T-1
-            videos[i] = (clip[future][:, views].transpose(1, 0, 2, 3, 4), pred[:, [t - 1 for t in future]])
+            videos[i] = (clip[future].transpose(1, 0, 2, 3, 4), pred[:, [t - 1 for t in future]])
     timings.update(
         {
             "fit_seconds": timings["sim_fit_seconds"] + render_fit,

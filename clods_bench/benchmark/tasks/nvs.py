@@ -97,6 +97,19 @@ def _as_images(out: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
     return np.clip(arr.astype(np.float32), 0.0, 1.0)
 
 
+class _Frames:
+    """The stored frames `times` x `views` of one trajectory, read once, indexed like the full (T, N, ...) array."""
+
+    def __init__(self, lazy: Any, times: list[int], views: list[int]) -> None:
+        self._data = lazy.read(times, views)
+        self._t = {t: k for k, t in enumerate(times)}
+        self._v = {v: k for k, v in enumerate(views)}
+
+    def __getitem__(self, key: tuple[int, list[int]]) -> np.ndarray:
+        t, views = key
+        return self._data[self._t[t], [self._v[v] for v in views]]
+
+
 def _to_float(frames: np.ndarray) -> np.ndarray:
     return np.asarray(frames, dtype=np.float32) / 255.0
 
@@ -134,7 +147,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames))
         for i in traj_ids:
             traj = store.load_trajectory(i)
-            video = store.load_frames(i)
+            video = _Frames(store.frames(i), sorted({0, *frames}), train_idx + test_idx)  # only the frames and views scored or fitted
             traj_scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
             renderer = None
             for n, t in enumerate(frames):
