@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("task", help="task name")
     p.add_argument("--sim", help="simulator plugin")
     p.add_argument("--renderer", help="renderer plugin")
-    p.add_argument("--predictor", help="video-predictor plugin (dvc task baselines: copylast, simvp)")
+    p.add_argument("--predictor", help="video-predictor plugin (dvc task baselines: copylast, simvp, tau, mau, mmvp)")
     p.add_argument("--label", help="row label in the tables")
     p.add_argument("--train-subset", choices=("all", "first_half"), help="training trajectories: all (MGN) or first half (MGN*)")
     p.add_argument("--seeds", type=int, nargs="+", help="seeds (default from the preset)")

@@ -93,7 +93,7 @@ class RunConfig:
     renderer: str | None = None
     """Renderer plugin name (tasks that need one)."""
     predictor: str | None = None
-    """Video-predictor plugin name (the dvc task's pixel-space baselines: copylast, simvp, ...)."""
+    """Video-predictor plugin name (the dvc task's pixel-space baselines: copylast, simvp, tau, mau, mmvp)."""
     label: str | None = None
     """Row label in tables (default: the simulator/renderer name, with '*' for the first-half subset)."""
     train_subset: Literal["all", "first_half"] = "all"

@@ -1,7 +1,7 @@
 """The DVC forward task (video prediction, the paper's Table 4): predicted videos scored against the truth
 with PSNR, SSIM, LPIPS and RMSE (tables show SSIM x10, LPIPS x100, RMSE x100).
 
-Two kinds of rows. A video predictor (`--predictor copylast|simvp`): the baselines "cannot utilize
+Two kinds of rows. A video predictor (`--predictor copylast|simvp|tau|mau|mmvp`): the baselines "cannot utilize
 multi-view videos", so, as in the appendix, every scored view of the first `num_trajectories`
 training trajectories is a single-view video; the predictor trains on frames 0..interp_steps
 (paper: the first 300 steps) and predicts the remaining frames (paper: the following 100) from

@@ -6,7 +6,10 @@ from typing import Any
 
 from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.plugins.video.mau import MauConfig
+from clods_bench.plugins.video.mmvp import MmvpConfig
 from clods_bench.plugins.video.simvp import SimvpConfig
+from clods_bench.plugins.video.tau import TauConfig
 
 
 def _build_copylast(cfg: Any, ctx: BuildContext) -> Any:
@@ -19,6 +22,24 @@ def _build_simvp(cfg: SimvpConfig, ctx: BuildContext) -> Any:
     from clods_bench.plugins.video.simvp import SimvpPredictor
 
     return SimvpPredictor(cfg, seed=ctx.seed, progress=ctx.progress)
+
+
+def _build_tau(cfg: TauConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.video.tau import TauPredictor
+
+    return TauPredictor(cfg, seed=ctx.seed, progress=ctx.progress)
+
+
+def _build_mau(cfg: MauConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.video.mau import MauPredictor
+
+    return MauPredictor(cfg, seed=ctx.seed, progress=ctx.progress)
+
+
+def _build_mmvp(cfg: MmvpConfig, ctx: BuildContext) -> Any:
+    from clods_bench.plugins.video.mmvp import MmvpPredictor
+
+    return MmvpPredictor(cfg, seed=ctx.seed, progress=ctx.progress)
 
 
 @hookimpl
@@ -34,6 +55,27 @@ def clods_bench_video_predictors() -> list[PluginSpec]:
             description="SimVP (Gao et al. 2022): CNN encoder, Inception translator over stacked time, CNN decoder; MSE on single-view videos.",
             build=_build_simvp,
             config_cls=SimvpConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="tau",
+            description="TAU (Tan et al. 2023): SimVP v2 with temporal attention units; MSE + differential divergence on single-view videos.",
+            build=_build_tau,
+            config_cls=TauConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="mau",
+            description="MAU (Chang et al. 2021): recurrent motion-aware units attending over past temporal states; MSE on single-view videos.",
+            build=_build_mau,
+            config_cls=MauConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="mmvp",
+            description="MMVP (Zhong et al. 2023): motion matrices of feature maps, predicted and composed with the last frame's features.",
+            build=_build_mmvp,
+            config_cls=MmvpConfig,
             learned=True,
         ),
     ]

@@ -13,19 +13,12 @@ from clods_bench.benchmark.registry import default_registry
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.video.copylast import CopyLastPredictor
 from clods_bench.plugins.video.simvp import CHECKPOINT_FILE, SimvpConfig, SimvpPredictor
-
-
-def moving_square(frames: int = 14, size: int = 16, side: int = 4, y0: int = 6) -> np.ndarray:
-    """(T,H,W,3): a white side x side square on black moving one pixel right per frame."""
-    video = np.zeros((frames, size, size, 3), np.float32)
-    for t in range(frames):
-        video[t, y0 : y0 + side, t : t + side] = 1.0
-    return video
+from tests.plugins.video.toys import moving_square
 
 
 def test_builtins_are_registered_as_video_predictors() -> None:
     reg = default_registry(refresh=True)
-    assert {"copylast", "simvp"} <= set(reg.names("video_predictor"))
+    assert {"copylast", "simvp", "tau", "mau", "mmvp"} <= set(reg.names("video_predictor"))
     assert reg.origins[("video_predictor", "simvp")] == "video_predictors"  # the entry-point name
     assert reg.get("video_predictor", "simvp").config_cls is SimvpConfig
 
