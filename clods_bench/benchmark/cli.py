@@ -104,9 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
-                        "sim: train/inference step time of each simulator vs the physics solver")  # fmt: skip
+                        "sim: train/inference step time of each simulator vs the physics solver; "
+                        "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference")  # fmt: skip
     p.add_argument("--steps", type=int, default=400, help="data: solver steps to time")
     p.add_argument("--views", type=int, default=8, help="data/render: views to render")
     p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
@@ -116,7 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
                    help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
-    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames")
+    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames; stage2: frames to extract")
+    p.add_argument("--preset", default="ci", help="stage2: preset whose data, cameras and task_config.clods are used")
+    p.add_argument("--fit-iterations", type=int, default=60, help="stage2: renderer fit iterations on frame 0 before timing")
     p.set_defaults(func=cmd_bench)
     return parser
 
@@ -327,6 +330,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
+    elif args.what == "stage2":
+        from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
+
+        print_bench_stage2(console, preset=args.preset, frames=args.frames, fit_iterations=args.fit_iterations,
+                           backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
         from clods_bench.benchmark.sim_bench import bench_sim
 

@@ -35,34 +35,30 @@ def _clamp(v, lo, hi):
 
 @njit(cache=True, nogil=True)
 def _cov2d(S, T):
-    """(a, b, c) of sym(T S T^T) for the (2,3) matrix T and (3,3) S."""
-    m = np.zeros((2, 2))
-    for i in range(2):
-        for j in range(2):
-            s = 0.0
-            for k in range(3):
-                ts = 0.0
-                for l in range(3):
-                    ts += T[i, l] * S[l, k]
-                s += ts * T[j, k]
-            m[i, j] = s
-    return m[0, 0], 0.5 * (m[0, 1] + m[1, 0]), m[1, 1]
+    """(a, b, c) of sym(T S T^T) for the (2,3) matrix T (a tuple, row-major) and (3,3) S."""
+    ts0 = (T[0] * S[0, 0] + T[1] * S[1, 0] + T[2] * S[2, 0], T[0] * S[0, 1] + T[1] * S[1, 1] + T[2] * S[2, 1],
+           T[0] * S[0, 2] + T[1] * S[1, 2] + T[2] * S[2, 2])  # fmt: skip
+    ts1 = (T[3] * S[0, 0] + T[4] * S[1, 0] + T[5] * S[2, 0], T[3] * S[0, 1] + T[4] * S[1, 1] + T[5] * S[2, 1],
+           T[3] * S[0, 2] + T[4] * S[1, 2] + T[5] * S[2, 2])  # fmt: skip
+    m00 = ts0[0] * T[0] + ts0[1] * T[1] + ts0[2] * T[2]
+    m01 = ts0[0] * T[3] + ts0[1] * T[4] + ts0[2] * T[5]
+    m10 = ts1[0] * T[0] + ts1[1] * T[1] + ts1[2] * T[2]
+    m11 = ts1[0] * T[3] + ts1[1] * T[4] + ts1[2] * T[5]
+    return m00, 0.5 * (m01 + m10), m11
 
 
 @njit(cache=True, nogil=True)
-def _jacobian(pc, cam, lims, T):
-    """Fill T (2,3) = J R at camera-space centre pc; returns (tx, ty, x inside the clamp, y inside the clamp)."""
-    x, y, z = pc[0], pc[1], pc[2]
+def _jacobian(x, y, z, cam, lims):
+    """(T, tx, ty, x inside the clamp, y inside the clamp): T = J R (2x3, a row-major tuple) at the camera-space centre."""
     fx, fy = cam[0], cam[1]
     cx_, okx = _clamp(x / z, -lims[0], lims[1])
     cy_, oky = _clamp(y / z, -lims[2], lims[3])
     tx, ty = z * cx_, z * cy_
     J00, J02 = fx / z, -fx * tx / (z * z)
     J11, J12 = fy / z, -fy * ty / (z * z)
-    for k in range(3):
-        T[0, k] = J00 * cam[4 + k] + J02 * cam[10 + k]
-        T[1, k] = J11 * cam[7 + k] + J12 * cam[10 + k]
-    return tx, ty, okx, oky
+    T = (J00 * cam[4] + J02 * cam[10], J00 * cam[5] + J02 * cam[11], J00 * cam[6] + J02 * cam[12],
+         J11 * cam[7] + J12 * cam[10], J11 * cam[8] + J12 * cam[11], J11 * cam[9] + J12 * cam[12])  # fmt: skip
+    return T, tx, ty, okx, oky
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -76,13 +72,13 @@ def project_fwd(means, covars, opac, cams, ts, lims, width, height, near, eps2d,
     tiles_x, tiles_y = (width + tile - 1) // tile, (height + tile - 1) // tile
     for cg in prange(C * G):
         cam, g = cg // G, cg % G
-        T = np.empty((2, 3))
         S = covars[g]
         m = means[g]
-        pc = np.empty(3)
-        for i in range(3):
-            pc[i] = cams[cam, 4 + 3 * i] * m[0] + cams[cam, 5 + 3 * i] * m[1] + cams[cam, 6 + 3 * i] * m[2] + ts[cam, i]
-        depths[cam, g] = pc[2]
+        cr = cams[cam]
+        x = cr[4] * m[0] + cr[5] * m[1] + cr[6] * m[2] + ts[cam, 0]
+        y = cr[7] * m[0] + cr[8] * m[1] + cr[9] * m[2] + ts[cam, 1]
+        z = cr[10] * m[0] + cr[11] * m[1] + cr[12] * m[2] + ts[cam, 2]
+        depths[cam, g] = z
         finite = True
         for i in range(3):
             finite = finite and math.isfinite(m[i])
@@ -94,12 +90,12 @@ def project_fwd(means, covars, opac, cams, ts, lims, width, height, near, eps2d,
         radii[cam, g, 0] = radii[cam, g, 1] = 0
         bounds[cam, g, 0] = bounds[cam, g, 1] = bounds[cam, g, 2] = bounds[cam, g, 3] = 0
         thresholds[cam, g] = -1.0
-        if not (finite and pc[2] > near):
+        if not (finite and z > near):
             continue
-        u = cams[cam, 0] * pc[0] / pc[2] + cams[cam, 2]
-        v = cams[cam, 1] * pc[1] / pc[2] + cams[cam, 3]
+        u = cr[0] * x / z + cr[2]
+        v = cr[1] * y / z + cr[3]
         means2d[cam, g, 0], means2d[cam, g, 1] = u, v
-        _jacobian(pc, cams[cam], lims[cam], T)
+        T, _, _, _, _ = _jacobian(x, y, z, cr, lims[cam])
         a, b, c = _cov2d(S, T)
         a += eps2d
         c += eps2d
@@ -129,20 +125,18 @@ def project_bwd(means, covars, cams, ts, lims, eps2d, radii, v_means2d, v_conics
     """Chain rule of `project_fwd` from d loss / d (means2d, conics, depths) to means (G,3) and covars (G,3,3)."""
     C, G = v_depths.shape
     for g in prange(G):
-        T = np.empty((2, 3))
         S = covars[g]
         m = means[g]
-        pc = np.empty(3)
-        vT = np.empty((2, 3))
+        vT = np.empty(6)  # d loss / d T, row-major
         for cam in range(C):
             if radii[cam, g, 0] <= 0:
                 continue
             cr = cams[cam]
-            for i in range(3):
-                pc[i] = cr[4 + 3 * i] * m[0] + cr[5 + 3 * i] * m[1] + cr[6 + 3 * i] * m[2] + ts[cam, i]
-            x, y, z = pc[0], pc[1], pc[2]
+            x = cr[4] * m[0] + cr[5] * m[1] + cr[6] * m[2] + ts[cam, 0]
+            y = cr[7] * m[0] + cr[8] * m[1] + cr[9] * m[2] + ts[cam, 1]
+            z = cr[10] * m[0] + cr[11] * m[1] + cr[12] * m[2] + ts[cam, 2]
             fx, fy = cr[0], cr[1]
-            tx, ty, okx, oky = _jacobian(pc, cr, lims[cam], T)
+            T, tx, ty, okx, oky = _jacobian(x, y, z, cr, lims[cam])
             a, b, c = _cov2d(S, T)
             a, c = a + eps2d, c + eps2d  # conic (c/D, -b/D, a/D) of the dilated covariance
             det = a * c - b * b
@@ -156,21 +150,21 @@ def project_bwd(means, covars, cams, ts, lims, eps2d, radii, v_means2d, v_conics
             # d loss / d S = T^T V T
             for i in range(3):
                 for j in range(3):
-                    v_covars[g, i, j] += (T[0, i] * (V00 * T[0, j] + V01 * T[1, j])
-                                          + T[1, i] * (V01 * T[0, j] + V11 * T[1, j]))  # fmt: skip
+                    v_covars[g, i, j] += (T[0 + i] * (V00 * T[0 + j] + V01 * T[3 + j])
+                                          + T[3 + i] * (V01 * T[0 + j] + V11 * T[3 + j]))  # fmt: skip
             # d loss / d T = V T (S + S^T)
             for i in range(2):
                 for j in range(3):
                     s = 0.0
                     for k in range(3):
-                        vt = (V00 * T[0, k] + V01 * T[1, k]) if i == 0 else (V01 * T[0, k] + V11 * T[1, k])
+                        vt = (V00 * T[0 + k] + V01 * T[3 + k]) if i == 0 else (V01 * T[0 + k] + V11 * T[3 + k])
                         s += vt * (S[k, j] + S[j, k])
-                    vT[i, j] = s
+                    vT[3 * i + j] = s
             # T = J R: d loss / d J = vT R^T; only J00, J02, J11, J12 depend on the centre
-            vJ00 = vT[0, 0] * cr[4] + vT[0, 1] * cr[5] + vT[0, 2] * cr[6]
-            vJ02 = vT[0, 0] * cr[10] + vT[0, 1] * cr[11] + vT[0, 2] * cr[12]
-            vJ11 = vT[1, 0] * cr[7] + vT[1, 1] * cr[8] + vT[1, 2] * cr[9]
-            vJ12 = vT[1, 0] * cr[10] + vT[1, 1] * cr[11] + vT[1, 2] * cr[12]
+            vJ00 = vT[0] * cr[4] + vT[1] * cr[5] + vT[2] * cr[6]
+            vJ02 = vT[0] * cr[10] + vT[1] * cr[11] + vT[2] * cr[12]
+            vJ11 = vT[3] * cr[7] + vT[4] * cr[8] + vT[5] * cr[9]
+            vJ12 = vT[3] * cr[10] + vT[4] * cr[11] + vT[5] * cr[12]
             z2, z3 = z * z, z * z * z
             vx, vy = 0.0, 0.0
             vz = v_depths[cam, g] - vJ00 * fx / z2 - vJ11 * fy / z2 + vJ02 * 2.0 * fx * tx / z3 + vJ12 * 2.0 * fy * ty / z3
