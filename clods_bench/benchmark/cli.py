@@ -110,11 +110,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "store"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
+                        "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
                         "store: frame store bytes and read speed vs raw .npy")  # fmt: skip
-    p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured (default: ci)")
+    p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
+                   "cameras and task_config.clods are used (default: ci)")  # fmt: skip
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store: config override, e.g. data.root=DIR")
     p.add_argument("--blocks", type=int, default=None,
                    help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
@@ -128,7 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
                    help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
-    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames")
+    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames; stage2: frames to extract")
+    p.add_argument("--fit-iterations", type=int, default=60, help="stage2: renderer fit iterations on frame 0 before timing")
     p.set_defaults(func=cmd_bench)
     return parser
 
@@ -361,6 +364,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
+    elif args.what == "stage2":
+        from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
+
+        print_bench_stage2(console, preset=args.preset, frames=args.frames, fit_iterations=args.fit_iterations,
+                           backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
         from clods_bench.benchmark.sim_bench import bench_sim
 

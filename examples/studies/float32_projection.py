@@ -1,8 +1,8 @@
-"""How far the images move when the EWA projection runs in float32 instead of float64 (cpu backend, bench scene).
+"""How far the images move when the EWA projection runs in float32 instead of float64 (bench scene).
 
 gsplat projects in float32; the cpu backends project in float64 because det(cov2d) = a c - b^2 of a flat
-Gaussian seen nearly edge-on cancels. This script renders `bench render`'s scene twice with the cpu
-backend, once with the projection switched to float32, and prints the differences, to compare with the
+Gaussian seen nearly edge-on cancels. This script renders `bench render`'s scene twice with the torch
+reference backend (the cpu backend projects in numba, float64 only), once with the torch projection switched to float32, and prints the differences, to compare with the
 'max |gsplat - cpu|' rows of `clods-bench bench render` on a GPU.
 
     python examples/studies/float32_projection.py 128 8     # bench render's default scene
@@ -22,8 +22,8 @@ from clods_bench.plugins.splatting.flag_scene import bench_scene
 
 
 def render(data: dict, cameras: list) -> torch.Tensor:
-    """(C,H,W,4) rgb and alpha of the scene with the cpu backend."""
-    out = rasterize.render_gaussians(data["means"], data["covars"], data["opacities"], data["colors"], cameras, backend="cpu")
+    """(C,H,W,4) rgb and alpha of the scene with the reference backend (torch projection)."""
+    out = rasterize.render_gaussians(data["means"], data["covars"], data["opacities"], data["colors"], cameras, backend="reference")
     return torch.cat([out.rgb, out.alpha], dim=-1)
 
 

@@ -1,13 +1,20 @@
-"""Fast CPU splatting backend: a torch.autograd.Function whose forward and backward are numba kernels.
+"""Fast CPU splatting backend: one torch.autograd.Function whose forward and backward are numba kernels.
 
-Same inputs, outputs and compositing rules as `reference.rasterize_reference`; the kernels work in
-float64 whatever the input dtype and results are cast back. Importing this module compiles nothing:
-the kernels compile on first use (then load from numba's on-disk cache).
+Forward: EWA projection (`projection_kernels.project_fwd`, the numba twin of `projection.project_gaussians`),
+depth sort and tile binning (`fast_kernels.sort_and_bin`), front-to-back compositing (`raster_fwd`).
+Backward: back-to-front compositing gradients (`raster_bwd`), summed per Gaussian (`reduce_grads`), then
+the projection's chain rule (`project_bwd`) to the world-space means and covariances. Same inputs,
+outputs and compositing rules as projection + `reference.rasterize_reference`. Everything between the
+input Gaussians and the output pixels is float64 whatever the input dtype (results are cast back), so a
+float32 render equals the float64 render of the same values to float32 rounding of the outputs.
+Importing this module compiles nothing: the kernels compile on first use (then load from numba's
+on-disk cache). The whole fixed cost of a render is a few numpy allocations and five kernel calls.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -16,66 +23,97 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from clods_bench.plugins.splatting import fast_kernels as K
+from clods_bench.plugins.splatting import projection_kernels as PK
+from clods_bench.plugins.splatting.projection import EPS2D, FOV_CLAMP
 
 
-def _np(x: Tensor, dtype=np.float64) -> np.ndarray:
-    """Detached, contiguous numpy copy of a tensor in `dtype`."""
-    return np.ascontiguousarray(x.detach().cpu().numpy(), dtype=dtype)
+def _np(x: Tensor) -> np.ndarray:
+    """Detached, contiguous float64 numpy view (or copy) of a CPU tensor."""
+    return np.ascontiguousarray(x.detach().numpy(), dtype=np.float64)
 
 
-class _RasterizeFast(torch.autograd.Function):
-    """Tile rasterization with a hand-written backward (gradients to means2d, conics, colours, opacities, depths)."""
+@dataclass(frozen=True)
+class CameraArrays:
+    """The cameras as the projection kernels read them (float64, C rows each)."""
+
+    cams: np.ndarray  # (C,13) fx, fy, cx, cy and R row-major
+    ts: np.ndarray  # (C,3) world-to-camera translations
+    lims: np.ndarray  # (C,4) Jacobian clamp of x/z and y/z: -lower x, upper x, -lower y, upper y
+    width: int
+    height: int
+
+    @classmethod
+    def from_tensors(cls, Ks: Tensor, Rs: Tensor, ts: Tensor, width: int, height: int) -> "CameraArrays":
+        """From (C,3,3) intrinsics, (C,3,3) rotations and (C,3) translations (projection.project_gaussians' inputs)."""
+        Kn, Rn = _np(Ks), _np(Rs)
+        fx, fy, cx, cy = Kn[:, 0, 0], Kn[:, 1, 1], Kn[:, 0, 2], Kn[:, 1, 2]
+        cams = np.concatenate([np.stack([fx, fy, cx, cy], axis=1), Rn.reshape(-1, 9)], axis=1)
+        margin = FOV_CLAMP - 1.0  # the same expressions as projection.project_gaussians
+        lims = np.stack([cx / fx + margin * 0.5 * width / fx, (width - cx) / fx + margin * 0.5 * width / fx,
+                         cy / fy + margin * 0.5 * height / fy, (height - cy) / fy + margin * 0.5 * height / fy], axis=1)  # fmt: skip
+        return cls(np.ascontiguousarray(cams), _np(ts), np.ascontiguousarray(lims), int(width), int(height))
+
+
+class _SplatFast(torch.autograd.Function):
+    """Projection + compositing with a hand-written backward (gradients to means, covars, opacities, colours)."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, colors, opacities, depths, radii, bounds, width, height, tile):  # noqa: D102
-        C, G = means2d.shape[:2]
-        tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
-        order = torch.argsort(depths.detach(), dim=1, stable=True)  # (C,G) front to back, ties by index
-        offsets, ids = K.bin_gaussians(_np(bounds, np.int32), _np(order, np.int64), tiles_x, tiles_y)
-        args = (
-            _np(means2d), _np(conics), _np(colors), _np(opacities), _np(depths), _np(radii),
-            offsets, ids, width, height, tile, tiles_x, tiles_y,
-        )  # fmt: skip
-        rgb = np.zeros((C, height, width, 3))
-        alpha, depth, t_final = (np.zeros((C, height, width)) for _ in range(3))
-        n_last = np.zeros((C, height, width), dtype=np.int32)
+    def forward(ctx, means, covars, opacities, colors, cams: CameraArrays, near: float, tile: int):  # noqa: D102
+        C, G = opacities.shape
+        W, H = cams.width, cams.height
+        tiles_x, tiles_y = math.ceil(W / tile), math.ceil(H / tile)
+        m, S, o = _np(means), _np(covars), _np(opacities)
+        means2d, conics = np.empty((C, G, 2)), np.empty((C, G, 3))
+        depths, thresh = np.empty((C, G)), np.empty((C, G))
+        radii, bounds = np.empty((C, G, 2), dtype=np.int32), np.empty((C, G, 4), dtype=np.int32)
+        PK.project_fwd(m, S, o, cams.cams, cams.ts, cams.lims, W, H, near, EPS2D, tile,
+                       means2d, depths, conics, radii, bounds, thresh)  # fmt: skip
+        offsets, ids = K.sort_and_bin(depths, bounds, tiles_x, tiles_y)
+        args = (means2d, conics, _np(colors), o, depths, radii, thresh, offsets, ids, W, H, tile, tiles_x, tiles_y)
+        rgb = np.empty((C, H, W, 3))
+        alpha, depth, t_final = np.empty((C, H, W)), np.empty((C, H, W)), np.empty((C, H, W))
+        n_last = np.empty((C, H, W), dtype=np.int32)
         with numba.parallel_chunksize(1):  # tiles differ a lot in cost: hand them out one by one
             K.raster_fwd(*args, rgb, alpha, depth, t_final, n_last)
-        ctx.args, ctx.state, ctx.dtype = args, (t_final, n_last), means2d.dtype
+        ctx.args, ctx.state, ctx.proj = args, (t_final, n_last), (m, S, cams)
+        ctx.dtype = means.dtype
+        r = torch.from_numpy(radii)
+        ctx.mark_non_differentiable(r)
         out = (torch.from_numpy(rgb), torch.from_numpy(alpha)[..., None], torch.from_numpy(depth)[..., None])
-        return tuple(x.to(means2d.dtype) for x in out)
+        return (*(x.to(means.dtype) for x in out), r)
 
     @staticmethod
     @once_differentiable
-    def backward(ctx, v_rgb, v_alpha, v_depth):  # noqa: D102
-        args, (t_final, n_last) = ctx.args, ctx.state
-        offsets, ids = args[6], args[7]
-        C, G = args[0].shape[:2]
-        g_isect = np.zeros((ids.shape[0], K.N_GRAD))
+    def backward(ctx, v_rgb, v_alpha, v_depth, _v_radii):  # noqa: D102
+        args, (t_final, n_last), (m, S, cams) = ctx.args, ctx.state, ctx.proj
+        offsets, ids, radii = args[7], args[8], args[5]
+        C, G = args[3].shape
+        g_isect = np.empty((ids.shape[0], K.N_GRAD))
         with numba.parallel_chunksize(1):
             K.raster_bwd(*args, t_final, n_last, _np(v_rgb), _np(v_alpha[..., 0]), _np(v_depth[..., 0]), g_isect)
         grads = np.zeros((C, G, K.N_GRAD))
-        K.reduce_grads(offsets, ids, g_isect, args[11] * args[12], grads)
+        K.reduce_grads(offsets, ids, g_isect, args[12] * args[13], grads)
+        v_means, v_covars = np.zeros((G, 3)), np.zeros((G, 3, 3))
+        if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:
+            PK.project_bwd(m, S, cams.cams, cams.ts, cams.lims, EPS2D, radii, np.ascontiguousarray(grads[..., 0:2]),
+                           np.ascontiguousarray(grads[..., 2:5]), np.ascontiguousarray(grads[..., 9]), v_means, v_covars)  # fmt: skip
         g = torch.from_numpy(grads).to(ctx.dtype)
-        # mean2d (2), conic (3), colour (3), opacity, depth; no gradient for radii, bounds, sizes
-        return g[..., 0:2], g[..., 2:5], g[..., 5:8], g[..., 8], g[..., 9], None, None, None, None, None
+        to = ctx.dtype
+        return torch.from_numpy(v_means).to(to), torch.from_numpy(v_covars).to(to), g[..., 8], g[..., 5:8], None, None, None
 
 
-def rasterize_fast(
-    means2d: Tensor,  # (C,G,2)
-    conics: Tensor,  # (C,G,3)
-    colors: Tensor,  # (C,G,3)
-    opacities: Tensor,  # (C,G)
-    depths: Tensor,  # (C,G)
-    radii: Tensor,  # (C,G,2) int32 from projection
-    bounds: Tensor,  # (C,G,4) int32 tile rectangles from projection.tile_bounds
-    width: int,
-    height: int,
+def splat_fast(
+    means: Tensor,  # (G,3) world-space centres
+    covars: Tensor,  # (G,3,3) world-space covariances
+    opacities: Tensor,  # (C,G) per-view opacities
+    colors: Tensor,  # (C,G,3) per-view colours
+    cameras: CameraArrays,
+    near: float = 0.01,
     tile: int = 16,
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Composite screen-space Gaussians with the numba kernels; differentiable (custom backward).
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Project and composite Gaussians with the numba kernels; differentiable w.r.t. means, covars, opacities, colours.
 
     Returns:
-        colour (C,H,W,3) without background, alpha (C,H,W,1), accumulated depth (C,H,W,1).
+        colour (C,H,W,3) without background, alpha (C,H,W,1), accumulated depth (C,H,W,1), radii (C,G,2) int32.
     """
-    return _RasterizeFast.apply(means2d, conics, colors, opacities, depths, radii, bounds, width, height, tile)
+    return _SplatFast.apply(means, covars, opacities, colors, cameras, near, tile)

@@ -22,31 +22,49 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 BOX_MARGIN = 1e-3  # px; guards the per-Gaussian pixel box against rounding at its exact edge
+SIGMA_SLACK = 1e-6  # row ranges reach sigma = log(255 o) + this, so rounding never drops a visible pixel
 N_GRAD = 10  # per-intersection gradient row: mean2d (2), conic (3), colour (3), opacity, depth
 
 
-@njit(cache=True, nogil=True)
-def bin_gaussians(bounds, order, tiles_x, tiles_y):
-    """Tile lists: offsets (C*ty*tx+1,) into ids (n_isect,) of Gaussians, each list in depth order."""
-    C, G = order.shape
+@njit(cache=True, nogil=True, parallel=True)
+def sort_and_bin(depths, bounds, tiles_x, tiles_y):
+    """Tile lists: offsets (C*ty*tx+1,) into ids (n_isect,) of Gaussians, each list in ascending depth.
+
+    Per camera (in parallel) the Gaussians with a non-empty tile rectangle are sorted stably by depth (ties
+    by index, as torch.argsort(stable=True)), counted per tile, and after a prefix sum appended to their tiles.
+    """
+    C, G = depths.shape
     per_cam = tiles_x * tiles_y
-    offsets = np.zeros(C * per_cam + 1, dtype=np.int64)
-    for c in range(C):
-        for k in range(G):
-            g = order[c, k]
+    order = np.empty((C, G), dtype=np.int64)
+    n_vis = np.zeros(C, dtype=np.int64)
+    counts = np.zeros(C * per_cam + 1, dtype=np.int64)
+    for c in prange(C):
+        n = 0
+        for g in range(G):
+            if bounds[c, g, 2] > bounds[c, g, 0] and bounds[c, g, 3] > bounds[c, g, 1]:
+                order[c, n] = g
+                n += 1
+        idx = order[c, :n].copy()
+        key = np.empty(n)
+        for k in range(n):
+            key[k] = depths[c, idx[k]]
+        perm = np.argsort(key, kind="mergesort")
+        for k in range(n):
+            g = idx[perm[k]]
+            order[c, k] = g
             for ty in range(bounds[c, g, 1], bounds[c, g, 3]):
                 for tx in range(bounds[c, g, 0], bounds[c, g, 2]):
-                    offsets[c * per_cam + ty * tiles_x + tx + 1] += 1
-    for t in range(C * per_cam):
-        offsets[t + 1] += offsets[t]
-    fill = offsets[:-1].copy()
+                    counts[c * per_cam + ty * tiles_x + tx + 1] += 1
+        n_vis[c] = n
+    offsets = np.cumsum(counts)
     ids = np.empty(offsets[-1], dtype=np.int32)
-    for c in range(C):
-        for k in range(G):
+    for c in prange(C):
+        fill = offsets[c * per_cam : (c + 1) * per_cam].copy()
+        for k in range(n_vis[c]):
             g = order[c, k]
             for ty in range(bounds[c, g, 1], bounds[c, g, 3]):
                 for tx in range(bounds[c, g, 0], bounds[c, g, 2]):
-                    t = c * per_cam + ty * tiles_x + tx
+                    t = ty * tiles_x + tx
                     ids[fill[t]] = g
                     fill[t] += 1
     return offsets, ids
@@ -58,6 +76,23 @@ def _pixel_box(mean, r, lo, hi):
     a = max(float(lo), math.ceil(mean - r - BOX_MARGIN - 0.5))
     b = min(float(hi - 1), math.floor(mean + r + BOX_MARGIN - 0.5))
     return int(a), int(b)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row_range(mx, my, a, b, c, thr, j, i0, i1):
+    """Pixels [lo, hi] of row j within [i0, i1] whose centres may have sigma <= thr: the ellipse's chord, widened.
+
+    Solves 0.5 a dx^2 + b dy dx + 0.5 c dy^2 = thr + SIGMA_SLACK for dx (a > 0 for a positive definite conic);
+    pixels outside have alpha < 1/255 and are skipped by the exact test anyway, so this only saves work.
+    """
+    dy = j + 0.5 - my
+    disc = 2.0 * a * (thr + SIGMA_SLACK) - dy * dy * (a * c - b * b)
+    if disc < 0.0:
+        return i0, i0 - 1
+    sq = math.sqrt(disc)
+    lo = math.ceil(mx + (-b * dy - sq) / a - 0.5 - BOX_MARGIN)
+    hi = math.floor(mx + (-b * dy + sq) / a - 0.5 + BOX_MARGIN)
+    return max(i0, int(lo)), min(i1, int(hi))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -76,7 +111,7 @@ def _alpha(px, py, mx, my, a, b, c, o):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def raster_fwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width, height, tile, tiles_x, tiles_y,
+def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, ids, width, height, tile, tiles_x, tiles_y,
                out_rgb, out_alpha, out_depth, t_final, n_last):  # fmt: skip
     """Front-to-back compositing of every tile; fills the outputs and the state the backward needs."""
     per_cam = tiles_x * tiles_y
@@ -100,8 +135,10 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width
             a, b, c, o = conics[cam, g, 0], conics[cam, g, 1], conics[cam, g, 2], opac[cam, g]
             i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
             j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
+            thr = thresh[cam, g]
             for j in range(j0, j1 + 1):
-                for i in range(i0, i1 + 1):
+                r0, r1 = _row_range(mx, my, a, b, c, thr, j, i0, i1)
+                for i in range(r0, r1 + 1):
                     p = (j - y0) * tw + (i - x0)
                     if done[p]:
                         continue
@@ -132,7 +169,7 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def raster_bwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width, height, tile, tiles_x, tiles_y,
+def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, ids, width, height, tile, tiles_x, tiles_y,
                t_final, n_last, v_rgb, v_alpha, v_depth, g_isect):  # fmt: skip
     """Back-to-front gradient pass; row k of g_isect (n_isect, N_GRAD) gets intersection k's gradient."""
     per_cam = tiles_x * tiles_y
@@ -169,8 +206,10 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width
             i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
             j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
             gm[:] = 0.0
+            thr = thresh[cam, g]
             for j in range(j0, j1 + 1):
-                for i in range(i0, i1 + 1):
+                r0, r1 = _row_range(mx, my, a, b, c, thr, j, i0, i1)
+                for i in range(r0, r1 + 1):
                     p = (j - y0) * tw + (i - x0)
                     if kk >= last[p]:
                         continue
@@ -203,6 +242,9 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, offsets, ids, width
                         gm[4] += v_s * 0.5 * dy * dy
             for q in range(N_GRAD):
                 g_isect[k, q] = gm[q]
+        for k in range(start + kmax, offsets[t + 1]):  # behind every pixel's last contributor: no gradient
+            for q in range(N_GRAD):
+                g_isect[k, q] = 0.0
 
 
 @njit(cache=True, nogil=True, parallel=True)

@@ -1,7 +1,8 @@
 """The one entry point every Gaussian renderer plugin calls: `render_gaussians` -> `RenderOutput`.
 
-Pipeline: validate -> EWA projection (torch) -> per-view colours (RGB or SH) -> tile bounds ->
-rasterize with the chosen backend -> background and depth normalisation (torch). Gradients reach
+Pipeline: validate -> per-view colours (RGB or SH) -> EWA projection, tile binning and compositing by
+the chosen backend ('cpu': all numba, `fast_cpu.splat_fast`; 'reference': torch projection and tiles;
+'gsplat': torch projection, CUDA tiles) -> background and depth normalisation (torch). Gradients reach
 means, covars, opacities, colours (and a background tensor) through autograd on the torch parts and
 the backend's backward on the rasterization.
 """
@@ -101,22 +102,22 @@ def render_gaussians(
         )
         return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=radii)
 
-    proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
     rgb_cg = view_colors(colors, means, centers, degree).to(dtype)  # (C,G,3)
     opac_cg = opacities.to(dtype)[None].expand(len(cameras), G)  # (C,G)
-    bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)
     if backend == "cpu":
-        from clods_bench.plugins.splatting.fast_cpu import rasterize_fast
+        from clods_bench.plugins.splatting.fast_cpu import CameraArrays, splat_fast
 
-        color, alpha, dacc = rasterize_fast(
-            proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, proj.radii, bounds, width, height, tile
-        )
+        cams = CameraArrays.from_tensors(Ks, Rs, ts, width, height)
+        color, alpha, dacc, radii = splat_fast(means, covars, opac_cg, rgb_cg, cams, near=near, tile=tile)
     else:
         from clods_bench.plugins.splatting.reference import rasterize_reference
 
+        proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
+        bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)
         color, alpha, dacc = rasterize_reference(
             proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, bounds, width, height, tile
         )
+        radii = proj.radii
     rgb = color + (1.0 - alpha) * bg[:, None, None, :]
     depth = dacc / alpha.clamp(min=1e-10) if depth_mode == "expected" else dacc
-    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=proj.radii.max(dim=-1).values)
+    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, radii=radii.max(dim=-1).values)

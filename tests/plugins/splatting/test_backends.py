@@ -94,3 +94,21 @@ def test_gsplat_backend_matches_cpu(kind: str) -> None:
     torch.testing.assert_close(gs_img["depth"].cpu()[covered], cpu_img["depth"][covered], atol=1e-4, rtol=1e-4)
     for k, g in cpu_grad.items():
         torch.testing.assert_close(gs_grad[k].cpu(), g, atol=1e-3 * float(g.abs().max()), rtol=0, msg=f"gradient of {k}")
+
+
+def test_fast_backend_matches_reference_flat_dense_and_empty_tiles() -> None:
+    # flat Gaussians nearly edge-on (thin slanted ellipses: the kernels' per-row chords), 150 of them crowded
+    # into one tile, and tiles with nothing in them
+    from tests.plugins.splatting.test_fast_projection import _flat_edge_on_scene
+    from tests.plugins.splatting.conftest import head_on_camera
+
+    scene = _flat_edge_on_scene(250, seed=21)
+    scene["means"][:150, :2] = scene["means"][:150, :2] * 0.03 - torch.tensor([0.25, 0.2], dtype=torch.float64)
+    cameras = [head_on_camera(80, 64, 90.0)]
+    ref_img, ref_grad = _render_with_grads(scene, cameras, "reference")
+    fast_img, fast_grad = _render_with_grads(scene, cameras, "cpu")
+    assert (ref_img["alpha"][0, 48:, 64:] == 0).all() and float(ref_img["alpha"].max()) > 0.99
+    for k in ("rgb", "alpha", "depth"):
+        torch.testing.assert_close(fast_img[k], ref_img[k], atol=TOL, rtol=0)
+    for k, g in ref_grad.items():
+        torch.testing.assert_close(fast_grad[k], g, atol=TOL * max(1.0, float(g.abs().max())), rtol=0, msg=f"gradient of {k}")
