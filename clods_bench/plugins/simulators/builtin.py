@@ -6,7 +6,7 @@ from clods_bench.benchmark.descriptors import PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.plugins.simulators.baselines import ConstantVelocity, Frozen
 from clods_bench.plugins.simulators.learned.config import MgnConfig
-from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig, HcmtConfig
+from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig, DhmpConfig, HcmtConfig
 from clods_bench.plugins.simulators.physics import PhysicsConfig, PhysicsSimulator
 
 
@@ -26,6 +26,12 @@ def _build_hcmt(cfg: HcmtConfig, ctx: object) -> object:
     from clods_bench.plugins.simulators.learned.hcmt import build_hcmt  # torch is imported only when a model is built
 
     return build_hcmt(cfg, ctx)
+
+
+def _build_dhmp(cfg: DhmpConfig, ctx: object) -> object:
+    from clods_bench.plugins.simulators.learned.dhmp import build_dhmp  # torch is imported only when a model is built
+
+    return build_dhmp(cfg, ctx)
 
 
 @hookimpl
@@ -66,6 +72,13 @@ def clods_bench_simulators() -> list[PluginSpec]:
             description="HCMT-style model: mesh-transformer U-Net over bi-stride levels, contact attention with obstacles.",
             build=_build_hcmt,
             config_cls=HcmtConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="dhmp",
+            description="DHMP-style model: anisotropic message-passing U-Net over levels whose nodes are selected per input (Gumbel-softmax).",
+            build=_build_dhmp,
+            config_cls=DhmpConfig,
             learned=True,
         ),
     ]

@@ -1,4 +1,4 @@
-"""Options of the BSMS-style and HCMT-style simulators: the shared learned options plus their U-Net's shape.
+"""Options of the BSMS-style, HCMT-style and DHMP-style simulators: the shared learned options plus their U-Net's shape.
 
 Kept free of torch so the plugin registry can load them without importing a model.
 """
@@ -55,3 +55,39 @@ class HcmtConfig(LearnedConfig):
                 raise ClodsError(f"must be an integer >= {least}, got {value!r}", where=f"{where}.{name}")
         if self.latent_size % self.heads:
             raise ClodsError(f"must divide latent_size {self.latent_size}, got {self.heads}", where=f"{where}.heads")
+
+
+@dataclass(frozen=True)
+class DhmpConfig(LearnedConfig):
+    """DHMP-style simulator: the shared model and trainer with anisotropic message passing over learned levels.
+
+    Defaults follow the authors' public code (hbell99/EvoMesh `main.py`, `models.py`): 7 levels of which the
+    first 3 are bi-stride levels, one bottom layer, Gumbel temperature 5 decayed by 0.999 a call down to 0.1.
+    """
+
+    levels: int = 7
+    """Coarse levels below the mesh (`multi_mesh_layer`)."""
+    fixed_levels: int = 3
+    """The first levels use the bi-stride (BSMS) selection (`pre_layer_num`); the rest select nodes with learned scores."""
+    bottom_blocks: int = 1
+    """Anisotropic layers at the coarsest level."""
+    tau_start: float = 5.0
+    """Gumbel-softmax temperature at the first training call."""
+    tau_decay: float = 0.999
+    """The temperature is multiplied by this after every training call of the processor..."""
+    tau_min: float = 0.1
+    """...down to this floor."""
+
+    def validate(self, where: str = "sim_config.dhmp") -> None:
+        """Raise ClodsError naming the first field out of range."""
+        super().validate(where)
+        for name, least in (("levels", 0), ("fixed_levels", 0), ("bottom_blocks", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < least:
+                raise ClodsError(f"must be an integer >= {least}, got {value!r}", where=f"{where}.{name}")
+        if self.fixed_levels > self.levels:
+            raise ClodsError(f"must be <= levels ({self.levels}), got {self.fixed_levels}", where=f"{where}.fixed_levels")
+        if not self.tau_min > 0 or not self.tau_start >= self.tau_min:
+            raise ClodsError(f"need 0 < tau_min <= tau_start, got {self.tau_min!r}, {self.tau_start!r}", where=f"{where}.tau_min")
+        if not 0 < self.tau_decay <= 1:
+            raise ClodsError(f"must be in (0, 1], got {self.tau_decay!r}", where=f"{where}.tau_decay")

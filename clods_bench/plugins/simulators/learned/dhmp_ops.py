@@ -1,0 +1,128 @@
+"""DHMP's building blocks: anisotropic message passing, differentiable node selection, REDUCE/EXPAND between levels.
+
+Facts from the authors' public code (hbell99/EvoMesh `core_model.py`, the published version of DHMP):
+- an anisotropic layer computes edge latents e = MLP([edge, h_s, h_r]) over the level's edges plus self
+  loops, an edge weight w = softmax over each receiver's incoming edges of MLP(e) (directional: w_sr != w_rs),
+  aggregates sum_s w_sr e_sr per receiver, updates h_r + MLP([h_r, aggregate]) and, on a learned level,
+  scores [keep, drop] per node from [h_r, aggregate];
+- selection is a Gumbel-softmax over the two scores with a straight-through hard sample: a node is kept when
+  its noisy 'keep' score wins, and the kept latents are multiplied by the hard-minus-detached-soft gate (1 in
+  the forward pass, the soft sample's gradient in the backward pass);
+- the coarse graph is the fine graph's edges and two-hop pairs (A u A^2) among the kept nodes;
+- REDUCE (down) replaces each node by sum_s w_sr h_s with the layer's own weights before selection; EXPAND (up)
+  writes the coarse latents over zeros at the kept nodes and sends them back along the same edges, transposed:
+  h_s = sum_r w_sr h_r.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from clods_bench.plugins.simulators.learned.blocks import EdgeFunction, aggregate, make_mlp
+from clods_bench.plugins.simulators.learned.graph import EdgeSet
+from clods_bench.plugins.simulators.learned.hcmt import scatter_softmax
+
+KEEP, DROP = 0, 1  # columns of the selection scores
+
+
+class AnisotropicLayer(nn.Module):
+    """One anisotropic message-passing layer; on a learned level it also scores each node for selection."""
+
+    def __init__(self, latent: int, hidden_layers: int, scores: bool = False) -> None:
+        super().__init__()
+        self.edge_fn = EdgeFunction(latent, latent, hidden_layers)
+        self.weight_fn = make_mlp(latent, latent, hidden_layers, 1, layer_norm=False)
+        self.node_fn = make_mlp(2 * latent, latent, hidden_layers, latent)
+        self.score_fn = make_mlp(2 * latent, latent, hidden_layers, 2, layer_norm=False) if scores else None
+
+    def forward(self, x: torch.Tensor, edges: EdgeSet) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(x + node update (V,L), edge weights (E,) summing to 1 per receiver, selection scores (V,2) or None)."""
+        n = x.shape[0]
+        e = self.edge_fn(x, edges)
+        w = scatter_softmax(self.weight_fn(e), edges.receivers, n)  # (E,1)
+        h = torch.cat([x, aggregate(e * w, edges.receivers, n)], dim=1)
+        scores = self.score_fn(h) if self.score_fn is not None else None
+        return x + self.node_fn(h), w.squeeze(1), scores
+
+
+def reduce(x: torch.Tensor, edges: EdgeSet, weight: torch.Tensor) -> torch.Tensor:
+    """REDUCE: out[r] = sum over edges s->r of weight * x[s] (V,L)."""
+    return aggregate(x.index_select(0, edges.senders) * weight.unsqueeze(1), edges.receivers, x.shape[0])
+
+
+def expand(x: torch.Tensor, edges: EdgeSet, weight: torch.Tensor) -> torch.Tensor:
+    """EXPAND, REDUCE transposed: out[s] = sum over edges s->r of weight * x[r] (V,L)."""
+    return aggregate(x.index_select(0, edges.receivers) * weight.unsqueeze(1), edges.senders, x.shape[0])
+
+
+def with_self_loops(edges: EdgeSet, self_latent: torch.Tensor, num_nodes: int) -> EdgeSet:
+    """`edges` plus one self loop per node whose latent is `self_latent` (L,)."""
+    loop = torch.arange(num_nodes, device=edges.senders.device)
+    feats = torch.cat([edges.features, self_latent.unsqueeze(0).expand(num_nodes, -1)])
+    return EdgeSet(feats, torch.cat([edges.senders, loop]), torch.cat([edges.receivers, loop]))
+
+
+@torch.no_grad()
+def two_hop_edges_among(senders: torch.Tensor, receivers: torch.Tensor, num_nodes: int, kept: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Coarse edges in `kept` indexing: nonzeros of (A + I)^2 between kept nodes, diagonal removed, sorted by sender.
+
+    Each pair (a, c) of kept nodes sharing a middle node m (a = m or a ~ m, likewise c) is one nonzero.
+    """
+    dev, k = senders.device, int(kept.shape[0])
+    new = torch.full((num_nodes,), -1, dtype=torch.int64, device=dev)
+    new[kept] = torch.arange(k, device=dev)
+    loop = torch.arange(num_nodes, device=dev)
+    end, mid = torch.cat([senders, receivers, loop]), torch.cat([receivers, senders, loop])  # A + A^T + I, as (end, middle)
+    use = new[end] >= 0
+    end, mid = new[end[use]], mid[use]
+    order = torch.argsort(mid, stable=True)
+    end, mid = end[order], mid[order]
+    count = torch.bincount(mid, minlength=num_nodes)
+    start = torch.cumsum(count, 0) - count
+    reps = count[mid]  # every entry pairs with every entry of its middle node's group
+    first = torch.repeat_interleave(torch.arange(len(end), device=dev), reps)
+    offset = torch.arange(len(first), device=dev) - torch.repeat_interleave(torch.cumsum(reps, 0) - reps, reps)
+    second = start[mid[first]] + offset
+    a, c = end[first], end[second]
+    off = a != c
+    code = torch.unique(a[off] * k + c[off])
+    return code // k, code % k
+
+
+def gumbel_noise(shape: tuple[int, ...], generator: torch.Generator, device: torch.device) -> torch.Tensor:
+    """Standard Gumbel samples -log(-log U) from `generator` (U kept off 0 and 1)."""
+    u = torch.rand(shape, generator=generator).clamp_(1e-10, 1.0 - 1e-7)
+    return (-torch.log(-torch.log(u))).to(device)
+
+
+def relaxed_keep(scores: torch.Tensor, tau: float, noise: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(hard keep mask (V,) bool, soft keep probability (V,)) of the Gumbel-softmax over [keep, drop] scores.
+
+    With `noise` None (evaluation) the choice is the most probable one and the soft value the plain softmax.
+    """
+    logits = scores if noise is None else scores + noise
+    soft = torch.softmax(logits / tau, dim=1)[:, KEEP]
+    return logits[:, KEEP] >= logits[:, DROP], soft
+
+
+def select_nodes(keep: torch.Tensor, soft: torch.Tensor, component: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(kept node indices (K,) ascending, straight-through gate (K,) equal to 1 with the soft value's gradient).
+
+    A connected component with no kept node keeps its node of highest soft probability (the lowest index on a
+    tie), so every level has at least one node per component and batched meshes stay independent.
+    """
+    n, dev = keep.shape[0], keep.device
+    comps = int(component.max()) + 1 if n else 0
+    has = torch.zeros(comps, dtype=torch.bool, device=dev).index_fill(0, component[keep], True)
+    if not bool(has.all()):
+        value = soft.detach()
+        peak = value.new_full((comps,), -torch.inf).scatter_reduce(0, component, value, "amax")
+        best = (value == peak[component]) & ~has[component]
+        node = torch.arange(n, device=dev)
+        first = torch.full((comps,), n, dtype=torch.int64, device=dev).scatter_reduce(0, component[best], node[best], "amin")
+        keep = keep.clone()
+        keep[first[first < n]] = True
+    kept = torch.nonzero(keep).squeeze(1)
+    s = soft.index_select(0, kept)
+    return kept, 1.0 - s.detach() + s
