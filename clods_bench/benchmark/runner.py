@@ -17,10 +17,24 @@ from clods_bench.benchmark.registry import Registry
 from clods_bench.errors import ClodsError
 
 
+def _named_plugin(registry: Registry, kind: str, name: str, option: str) -> Any:
+    """`registry.get(kind, name)`, its unknown-name error naming the run option that gave the name."""
+    try:
+        return registry.get(kind, name)
+    except ClodsError as exc:
+        raise ClodsError(exc.what, where=option, hint=exc.hint) from None
+
+
 def check_plugins(cfg: RunConfig, registry: Registry) -> None:
-    """Fail before any work if the task, scene or a needed plugin is unknown or missing."""
+    """Fail before any work if the task, scene or a needed plugin is unknown or missing.
+
+    The simulator is looked up by name for every task, the CloDS rows' backbone included, so any registered
+    simulator (a third-party one too) can be named; an unknown name fails here, naming the option `sim`.
+    """
     task = registry.get("task", cfg.task)
     registry.get("scene", cfg.data.scene)
+    if cfg.sim:
+        _named_plugin(registry, "simulator", cfg.sim, "sim")
     if "sim" in task.needs:
         if not cfg.sim:
             raise ClodsError(f"task '{cfg.task}' needs a simulator", where="--sim", hint=f"one of {registry.names('simulator')}")

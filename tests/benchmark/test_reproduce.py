@@ -53,6 +53,22 @@ def test_builtin_plan_loads_and_every_enabled_run_is_installed() -> None:
     assert len(runs) == len(plan.runs) and all(len(cfg.seeds) >= 2 for _, cfg in runs)
 
 
+def test_backbone_ablation_has_every_learned_backbone_and_reuses_table2_for_mgn() -> None:
+    """Paper Fig. 6a: X* and CloDS (X) per backbone; MGN's two rows resolve to Table 2's MGN* and CloDS configs (run once)."""
+    from clods_bench.benchmark.reproduce import config_identity
+
+    runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
+    rows = {(run.table, run.label): cfg for run, cfg in runs}
+    for sim in ("mgn", "bsms", "hcmt", "dhmp"):
+        star, clods = rows[("ablation_backbone", f"{sim.upper()}*")], rows[("ablation_backbone", f"CloDS ({sim.upper()})")]
+        assert (star.sim, star.renderer, star.train_subset) == (sim, None, "first_half")
+        assert (clods.sim, clods.renderer) == (sim, "smgs") and clods.task_config["clods"]["variant"] == "finetune"
+    assert config_identity(rows[("ablation_backbone", "MGN*")]) == config_identity(rows[("table2_cdg", "MGN*")])
+    assert config_identity(rows[("ablation_backbone", "CloDS (MGN)")]) == config_identity(rows[("table2_cdg", "CloDS")])
+    assert config_identity(rows[("ablation_backbone", "CloDS (BSMS)")]) != config_identity(rows[("table2_cdg", "CloDS")])
+    assert rows[("table2_cdg", "DHMP")].sim == "dhmp"
+
+
 def test_reproduce_writes_tables_and_manifest_matching_the_records(tmp_path: Path, tiny_root: Path) -> None:
     out = tmp_path / "results"
     manifest = reproduce("ci", out, default_registry(), Console(quiet=True), plan_path=_plan(tmp_path), overrides=_overrides(tiny_root, tmp_path / "runs"))
@@ -98,7 +114,7 @@ def test_unregistered_plugins_and_tasks_fail_listing_every_problem(tmp_path: Pat
     with pytest.raises(ClodsError) as err:
         reproduce("ci", tmp_path / "out", default_registry(), Console(quiet=True), plan_path=_plan(tmp_path, bad), overrides=_overrides(tiny_root, runs))
     msg = err.value.message
-    assert "unknown simulator 'constvl'" in msg and "did you mean 'constvel'" in msg
+    assert "sim: unknown simulator 'constvl'" in msg and "did you mean 'constvel'" in msg  # names the row's option
     assert "task 'nosuchtask' but table 't_cdg' holds 'cdg' rows" in msg and "task 'nosuchtask' is not registered" in msg
     assert "unknown table 't_missing'" in msg
     assert "label 'Frozen' appears twice" in msg and "data.num_trian" in msg

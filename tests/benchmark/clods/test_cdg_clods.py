@@ -118,3 +118,67 @@ def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp
         torch.testing.assert_close(first.render(v, cams), second.render(v, cams), rtol=0, atol=0)
     _, s3 = fit_stage1(ctx, trajs, images, cams, initial_meshes=np.stack([t.world_pos[0] + 0.01 for t in trajs]))
     assert s3["stage1_cached"] == 0.0  # other initial meshes: another representation
+
+
+class _ThirdPartySim:
+    """A third-party plugin (not an entry point of this package): a learned simulator under its own name."""
+
+    @staticmethod
+    def _build(cfg, ctx):
+        from clods_bench.plugins.simulators.learned.mgn import MgnProcessor
+        from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
+
+        return LearnedSimulator("acme", cfg, ctx.scene, lambda latent, hidden, names: MgnProcessor(latent, hidden, names, cfg.message_passing_steps))
+
+    from clods_bench.benchmark.hookspecs import hookimpl
+
+    @hookimpl
+    def clods_bench_simulators(self):
+        from clods_bench.benchmark.descriptors import PluginSpec
+        from clods_bench.plugins.simulators.learned.config import MgnConfig
+
+        return [PluginSpec(name="acme", description="third-party MGN", build=self._build, config_cls=MgnConfig, learned=True)]
+
+
+def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_root: Path, tmp_path: Path):
+    """Fast half of the check below: check_plugins accepts the name, stage 3 builds that plugin with its overrides."""
+    from clods_bench.benchmark.clods.config import clods_config
+    from clods_bench.benchmark.clods.stage3 import stage3_context
+    from clods_bench.benchmark.descriptors import TaskContext
+    from clods_bench.benchmark.registry import Registry, make_plugin_manager
+    from clods_bench.benchmark.runner import check_plugins
+    from clods_bench.benchmark.tasks.cdg import build_simulator
+
+    registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
+    cfg = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="acme", renderer="smgs")
+    check_plugins(cfg, registry)
+    ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path, registry=registry)
+    sim = build_simulator(stage3_context(ctx, clods_config(cfg)))
+    assert sim.name == "acme" and sim.config.loss == "rollout"  # the stage-3 default: eq. 8's rollout loss
+    assert build_simulator(ctx).config.loss == "one_step"  # its mesh pre-training (X*) keeps the plugin's own config
+
+
+@pytest.mark.slow  # ~60 s alone, minutes on a loaded machine: stages 1-3 end to end
+def test_any_registered_simulator_is_a_clods_backbone_by_name(tiny_root: Path, tmp_path: Path):
+    """The backbone ablation's rows: `sim: <name>` picks the backbone, a third-party plugin included, and it is the
+    simulator stage 3 fine-tunes (pre-trained on the first half's meshes, then trained on the second half's videos)."""
+    from clods_bench.benchmark.registry import Registry, make_plugin_manager
+
+    registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
+    tiny = ["sim_config.acme.latent_size=8", "sim_config.acme.message_passing_steps=1", "sim_config.acme.train_steps=4",
+            "sim_config.acme.warmup_steps=1", "task_config.clods.sim_overrides.train_steps=3", "task_config.clods.sim_overrides.warmup_steps=1",
+            "task_config.clods.sim_overrides.rollout_length=2"]  # fmt: skip
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", *FAST, *tiny, "task_config.clods.variant=finetune", sim="acme", renderer="games")
+    rec = _record(run_task(cfg, registry))
+    t = rec["per_seed"]["0"]["timings"]
+    assert rec["label"] == "CloDS[acme+games]" and t["fit/pretrain/train_steps"] == 4 and t["fit/stage3/train_steps"] == 3
+    assert list(tmp_path.rglob("acme.ckpt"))  # the third-party model was trained, not a built-in one
+
+
+def test_an_unregistered_backbone_is_one_error_naming_sim(tiny_root: Path, tmp_path: Path):
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", "task_config.clods.variant=finetune", sim="mgm", renderer="smgs")
+    with pytest.raises(ClodsError) as exc:
+        run_task(cfg, default_registry())
+    assert exc.value.where == "sim" and "unknown simulator 'mgm'" in exc.value.what and exc.value.hint == "did you mean 'mgn'?"
+    assert exc.value.message.startswith("sim: unknown simulator 'mgm'")
+    assert not list(tmp_path.rglob("*.npz"))  # failed before any work
