@@ -20,6 +20,7 @@ from clods_bench.plugins.simulators.learned.dhmp_ops import (
     reduce,
     relaxed_keep,
     select_nodes,
+    top_fraction,
     two_hop_edges_among,
 )
 from clods_bench.plugins.simulators.learned.graph import EdgeSet
@@ -110,8 +111,9 @@ def test_straight_through_gate_is_one_with_the_soft_samples_gradient():
     scores = torch.randn(6, 2, generator=g, dtype=torch.float64, requires_grad=True)
     noise = -torch.log(-torch.log(torch.rand(6, 2, generator=g, dtype=torch.float64)))
     tau = 0.7
-    keep, soft = relaxed_keep(scores, tau, noise)
+    keep, soft, margin = relaxed_keep(scores, tau, noise)
     assert torch.equal(keep, (scores + noise).argmax(1) == 0)  # the Gumbel-max sample
+    torch.testing.assert_close(margin, ((scores + noise)[:, 0] - (scores + noise)[:, 1]).detach(), check_stride=False)
     kept, gate = select_nodes(keep, soft, torch.zeros(6, dtype=torch.int64))
     torch.testing.assert_close(gate.detach(), torch.ones_like(gate))
     (grad,) = torch.autograd.grad(gate.sum(), scores)
@@ -122,6 +124,19 @@ def test_straight_through_gate_is_one_with_the_soft_samples_gradient():
     want[kept, 1] = -q[kept] * (1 - q[kept]) / tau
     torch.testing.assert_close(grad, want)
     assert torch.autograd.gradcheck(lambda sc: relaxed_keep(sc, tau, noise)[1], (scores,))  # finite differences
+
+
+def test_top_fraction_keeps_each_components_best_nodes_against_brute_force():
+    g = torch.Generator().manual_seed(4)
+    component = torch.randint(0, 4, (40,), generator=g)
+    margin = torch.randn(40, generator=g)
+    margin[5] = margin[6]  # a tie
+    for ratio in (0.01, 0.3, 0.5, 1.0):
+        keep = top_fraction(margin, component, ratio)
+        for c in range(4):
+            members = [i for i in range(40) if int(component[i]) == c]
+            best = sorted(members, key=lambda i: (-float(margin[i]), i))[: max(1, round(ratio * len(members)))]
+            assert sorted(torch.nonzero(keep & (component == c)).squeeze(1).tolist()) == sorted(best), (ratio, c)
 
 
 def test_a_component_without_kept_nodes_keeps_its_most_probable_node():
@@ -170,6 +185,20 @@ def test_the_hierarchy_is_selected_per_input():
     assert proc.temperature == pytest.approx(5.0 * 0.999**2)
 
 
+def test_a_keep_ratio_fixes_the_level_sizes_but_not_the_nodes():
+    s, r, pos = jittered_mesh(10, 6, seed=1)  # 60 nodes -> 29 (bi-stride) -> 14 -> 7 (ratio 0.5, half to even)
+    torch.manual_seed(0)
+    proc = DhmpProcessor(LATENT, 1, ["mesh"], DhmpConfig(latent_size=LATENT, levels=3, fixed_levels=1, keep_ratio=0.5)).eval()
+    chosen = set()
+    for seed in range(4):
+        nodes, inputs = make_inputs(s, r, pos, LATENT, seed=seed, key="a")
+        proc(nodes, inputs)
+        sizes = [len(k) for k in proc.last_kept]
+        assert sizes[2:] == [round(0.5 * sizes[1]), round(0.5 * round(0.5 * sizes[1]))]
+        chosen.add(tuple(proc.last_kept[2].tolist()))
+    assert len(chosen) > 1
+
+
 def test_permuting_nodes_permutes_the_output():
     s, r, pos = jittered_mesh(7, 5, seed=1)
     nodes, inputs = make_inputs(s, r, pos, LATENT, seed=1, key="a")
@@ -200,7 +229,7 @@ def test_contact_block_only_with_obstacles():
     assert (proc(nodes, inputs) - out).abs().max() > 1e-3
 
 
-@pytest.mark.parametrize("field,value", [("levels", -1), ("fixed_levels", 4), ("bottom_blocks", 0), ("tau_decay", 1.5), ("tau_min", 0.0)])
+@pytest.mark.parametrize("field,value", [("levels", -1), ("fixed_levels", 4), ("bottom_blocks", 0), ("tau_decay", 1.5), ("tau_min", 0.0), ("keep_ratio", 0.0)])
 def test_bad_config_raises(field, value):
     with pytest.raises(ClodsError, match=field):
         DhmpProcessor(LATENT, 1, ["mesh"], DhmpConfig(**{"latent_size": LATENT, "levels": 3, field: value}))

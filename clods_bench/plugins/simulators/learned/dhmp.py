@@ -34,6 +34,7 @@ from clods_bench.plugins.simulators.learned.dhmp_ops import (
     reduce,
     relaxed_keep,
     select_nodes,
+    top_fraction,
     two_hop_edges_among,
     with_self_loops,
 )
@@ -118,7 +119,9 @@ class DhmpProcessor(nn.Module):
                 s, r = h.senders[level + 1], h.receivers[level + 1]
             else:
                 noise = gumbel_noise(tuple(scores.shape), generator, scores.device) if generator is not None else None
-                keep, soft = relaxed_keep(scores, tau, noise)
+                keep, soft, margin = relaxed_keep(scores, tau, noise)
+                if cfg.keep_ratio is not None:
+                    keep = top_fraction(margin, component, cfg.keep_ratio)
                 kept, gate = select_nodes(keep, soft, component)
                 s, r = two_hop_edges_among(edges.senders, edges.receivers, n, kept)  # its self loops are the I
             x = x.index_select(0, kept)

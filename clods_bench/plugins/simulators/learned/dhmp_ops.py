@@ -6,7 +6,8 @@ Facts from the authors' public code (hbell99/EvoMesh `core_model.py`, the publis
   aggregates sum_s w_sr e_sr per receiver, updates h_r + MLP([h_r, aggregate]) and, on a learned level,
   scores [keep, drop] per node from [h_r, aggregate];
 - selection is a Gumbel-softmax over the two scores with a straight-through hard sample: a node is kept when
-  its noisy 'keep' score wins, and the kept latents are multiplied by the hard-minus-detached-soft gate (1 in
+  its noisy 'keep' score wins (or, with a keep ratio, an option of this implementation, when its noisy margin
+  is among its component's top fraction), and the kept latents are multiplied by the hard-minus-detached-soft gate (1 in
   the forward pass, the soft sample's gradient in the backward pass);
 - the coarse graph is the fine graph's edges and two-hop pairs (A u A^2) among the kept nodes;
 - REDUCE (down) replaces each node by sum_s w_sr h_s with the layer's own weights before selection; EXPAND (up)
@@ -96,14 +97,27 @@ def gumbel_noise(shape: tuple[int, ...], generator: torch.Generator, device: tor
     return (-torch.log(-torch.log(u))).to(device)
 
 
-def relaxed_keep(scores: torch.Tensor, tau: float, noise: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(hard keep mask (V,) bool, soft keep probability (V,)) of the Gumbel-softmax over [keep, drop] scores.
-
-    With `noise` None (evaluation) the choice is the most probable one and the soft value the plain softmax.
-    """
+def relaxed_keep(scores: torch.Tensor, tau: float, noise: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(hard keep mask (V,) bool, soft keep probability (V,), keep-minus-drop margin (V,)) of the Gumbel-softmax
+    over [keep, drop] scores. With `noise` None (evaluation) the choice is the most probable one and the soft
+    value the plain softmax."""
     logits = scores if noise is None else scores + noise
     soft = torch.softmax(logits / tau, dim=1)[:, KEEP]
-    return logits[:, KEEP] >= logits[:, DROP], soft
+    margin = logits[:, KEEP] - logits[:, DROP]
+    return margin >= 0, soft, margin
+
+
+def top_fraction(margin: torch.Tensor, component: torch.Tensor, ratio: float) -> torch.Tensor:
+    """Keep mask (V,): in each connected component its max(1, round(ratio n)) nodes of highest `margin` (lowest index on ties)."""
+    n = margin.shape[0]
+    order = torch.argsort(margin.detach(), descending=True, stable=True)
+    order = order[torch.argsort(component[order], stable=True)]  # by component, then margin descending
+    size = torch.bincount(component)
+    start = torch.cumsum(size, 0) - size
+    rank = torch.empty(n, dtype=torch.int64, device=margin.device)
+    rank[order] = torch.arange(n, device=margin.device) - start[component[order]]
+    quota = torch.clamp(torch.round(ratio * size.to(margin.dtype)).to(torch.int64), min=1)
+    return rank < quota[component]
 
 
 def select_nodes(keep: torch.Tensor, soft: torch.Tensor, component: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

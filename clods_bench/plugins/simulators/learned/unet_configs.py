@@ -77,6 +77,10 @@ class DhmpConfig(LearnedConfig):
     """The temperature is multiplied by this after every training call of the processor..."""
     tau_min: float = 0.1
     """...down to this floor."""
+    keep_ratio: float | None = None
+    """None: a node is kept when its sampled 'keep' wins, so a level's size is learned (the public code; it may
+    shrink to the one node per component this implementation always keeps). A fraction r in (0, 1]: each connected
+    component keeps its max(1, round(r n)) nodes of highest sampled keep-minus-drop margin (Gumbel top-k)."""
 
     def validate(self, where: str = "sim_config.dhmp") -> None:
         """Raise ClodsError naming the first field out of range."""
@@ -89,5 +93,7 @@ class DhmpConfig(LearnedConfig):
             raise ClodsError(f"must be <= levels ({self.levels}), got {self.fixed_levels}", where=f"{where}.fixed_levels")
         if not self.tau_min > 0 or not self.tau_start >= self.tau_min:
             raise ClodsError(f"need 0 < tau_min <= tau_start, got {self.tau_min!r}, {self.tau_start!r}", where=f"{where}.tau_min")
+        if self.keep_ratio is not None and not 0 < self.keep_ratio <= 1:
+            raise ClodsError(f"must be in (0, 1] or null, got {self.keep_ratio!r}", where=f"{where}.keep_ratio")
         if not 0 < self.tau_decay <= 1:
             raise ClodsError(f"must be in (0, 1], got {self.tau_decay!r}", where=f"{where}.tau_decay")
