@@ -10,6 +10,7 @@ import pytest
 
 from clods_bench.benchmark.clods.config import clods_config
 from clods_bench.benchmark.clods.labels import clods_label
+from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.records import RECORD_FILE, default_label
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.runner import run_task
@@ -129,8 +130,6 @@ class _ThirdPartySim:
         from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 
         return LearnedSimulator("acme", cfg, ctx.scene, lambda latent, hidden, names: MgnProcessor(latent, hidden, names, cfg.message_passing_steps))
-
-    from clods_bench.benchmark.hookspecs import hookimpl
 
     @hookimpl
     def clods_bench_simulators(self):
