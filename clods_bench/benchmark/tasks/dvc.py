@@ -26,14 +26,14 @@ import torch
 from rich.progress import Progress
 
 from clods_bench.atomic import atomic_path
+from clods_bench.benchmark.builders import as_images, build_renderer, build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput, VideoPredictor, check_prediction, check_rollout
 from clods_bench.benchmark.metrics import divergence_step
 from clods_bench.benchmark.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes, split_spec
-from clods_bench.benchmark.tasks.nvs import _as_images, _write_grid, build_renderer
+from clods_bench.benchmark.media import write_image_grid
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 
@@ -338,7 +338,7 @@ def _run_simulator(
                     out = renderer.render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)
-                img = _as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
+                img = as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 scores.add(i, t, img, clip[t])
                 frames.append(img)
                 bar.advance(job)
@@ -400,6 +400,6 @@ def _write_outputs(work: Path, opts: DvcConfig, videos: Videos, future: list[int
     if opts.grid_frames and videos:
         truth, pred = next(iter(videos.values()))
         picks = np.linspace(0, len(future) - 1, min(opts.grid_frames, len(future))).round().astype(int)
-        out["grid"] = str(_write_grid(work / GRID_FILE, [truth[:, k] for k in picks], [pred[:, k] for k in picks]))
+        out["grid"] = str(write_image_grid(work / GRID_FILE, [truth[:, k] for k in picks], [pred[:, k] for k in picks]))
         out["grid_frames"] = [future[k] for k in picks]
     return out

@@ -15,22 +15,19 @@ whose object has `per_frame = True`: it is fitted anew on every scored frame.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
+from clods_bench.benchmark.builders import as_images, build_renderer, split_spec
+from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import Renderer
-from clods_bench.benchmark.tasks.cdg import split_spec
+from clods_bench.benchmark.media import write_image_grid
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 
@@ -73,28 +70,6 @@ class NvsConfig:
 def is_per_frame(renderer: Any) -> bool:
     """True for a renderer fitted independently on every frame (3DGS): its object sets `per_frame = True`."""
     return bool(getattr(renderer, "per_frame", False))
-
-
-def build_renderer(ctx: TaskContext) -> Renderer:
-    """Build the configured renderer plugin for this seed (a fresh object per fit)."""
-    cfg = ctx.config
-    spec = ctx.registry.get("renderer", cfg.renderer)
-    rcfg = spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
-    scene = ctx.registry.get("scene", cfg.data.scene)
-    renderer = spec.build(rcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
-    if not isinstance(renderer, Renderer):
-        raise ClodsError("plugin did not return a Renderer (needs fit() and render())", where=f"renderer '{cfg.renderer}'")
-    return renderer
-
-
-def _as_images(out: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
-    """A renderer's output as float32 (N,H,W,3) numpy in [0,1]; ClodsError on a wrong shape or NaN."""
-    arr = out.detach().cpu().numpy() if isinstance(out, torch.Tensor) else np.asarray(out)
-    if arr.shape != shape:
-        raise ClodsError(f"render returned shape {arr.shape}, expected {shape}", where=where)
-    if not np.isfinite(arr).all():
-        raise ClodsError("render returned NaN/Inf pixels", where=where)
-    return np.clip(arr.astype(np.float32), 0.0, 1.0)
 
 
 class _Frames:
@@ -167,7 +142,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
                 with torch.no_grad():
                     out = renderer.render(torch.from_numpy(traj.world_pos[t].astype(np.float32)), test_cams)
                 render_seconds += time.perf_counter() - t0
-                pred = _as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
+                pred = as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 gt = _to_float(video[t, test_idx])
                 for k, v in image_scores(pred, gt, metric).items():
                     scores[k].append(v)
@@ -192,7 +167,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         timings[f"fit/{key}"] = float(np.mean([float(s[key]) for s in fit_stats if key in s]))
     shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
     curves = {k: np.stack(v).reshape(shape).mean(axis=(0, 2)).tolist() for k, v in scores.items() if v}  # per scored frame
-    grid_path = _write_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
+    grid_path = write_image_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
     extra = {
         "trajectories": traj_ids,
         "frames": frames,
@@ -208,21 +183,3 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "grid": str(grid_path) if grid_path else None,
     }
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
-
-
-def _write_grid(path: Path, gts: list[np.ndarray], preds: list[np.ndarray], min_side: int = 128, gap: int = 2) -> Path:
-    """PNG grid: per held-out view a ground-truth row above a rendered row, one column per shown frame."""
-    import imageio.v3 as iio
-
-    views, h, w, _ = gts[0].shape
-    k = max(1, math.ceil(min_side / max(h, w)))
-    tile_h, tile_w = h * k + gap, w * k + gap
-    canvas = np.full((2 * views * tile_h + gap, len(gts) * tile_w + gap, 3), 0.5, dtype=np.float32)  # grey gaps
-    for c, (gt, pred) in enumerate(zip(gts, preds)):
-        for v in range(views):
-            for r, img in enumerate((gt[v], pred[v])):
-                y, x = gap + (2 * v + r) * tile_h, gap + c * tile_w
-                canvas[y : y + h * k, x : x + w * k] = np.kron(img, np.ones((k, k, 1), dtype=np.float32))
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, np.clip(np.rint(canvas * 255.0), 0, 255).astype(np.uint8), extension=".png")
-    return path
