@@ -1,6 +1,7 @@
 """Named cloth scenes (flag, stiff, storm, large time step, cylinder) and their simulation.
 
-A scene fixes the physics (the environment) and the ranges its trajectories are drawn from;
+A scene is its cloth (a `Cloth` from `cloths`: the built-in flag and cylinder, or any triangle
+mesh a scene plugin brings), the physics (the environment) and the ranges its trajectories are drawn from;
 `simulate_scene` draws one trajectory's initial pose, initial velocity and turbulence from a seed,
 so a dataset is reproducible trajectory by trajectory. As in FLAGSIMPLE ("the same shaped cloth in
 the same environment", a unique initial state per trajectory), the flag scenes blow one mean wind
