@@ -9,7 +9,8 @@ takes any triangle mesh built in code or read from an OBJ/PLY file (`mesh_cloth_
 
 `validate_cloth_mesh` is what every scene's mesh must pass before it is simulated: one ClodsError
 naming the scene and the problem for a wrong `mesh_pos` shape, zero-area or repeated-node triangles,
-duplicate faces, edges of more than two faces, nodes joining two fans of faces, nodes in no face,
+duplicate faces, edges of more than two faces, nodes joining two fans of faces, triangles not
+consistently oriented, nodes in no face,
 handle flags that contradict the scene's `has_handles`, a `mesh_pos` that does not measure the rest
 shape, and a handle motion that does not start where the handles are.
 """
@@ -244,6 +245,15 @@ def _check_manifold(cells: np.ndarray, num: int, where: str) -> None:
         raise ClodsError(
             f"{bad.shape[0]} edges are shared by more than two triangles (non-manifold), first is edge ({bad[0, 0]}, {bad[0, 1]})",
             where=where,
+        )
+    directed = np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]])
+    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    if np.any(dcounts > 1):  # two faces sharing an edge must run along it in opposite directions
+        raise ClodsError(
+            f"triangles are not consistently oriented: {int(np.sum(dcounts > 1))} edges run the same way in both their "
+            "triangles (normals, wind pressure and the initial bend need one side of the cloth)",
+            where=where,
+            hint="flip the corner order of the triangles on the wrong side",
         )
     boundary = edges[counts == 1]
     ends = np.bincount(boundary.ravel(), minlength=num)

@@ -130,6 +130,12 @@ def test_edge_of_three_triangles_is_named():
     _bad(sheet(cells=cells, rest_pos=rest, mesh_pos=mp), r"edges are shared by more than two triangles .*edge \(0, 4\)")
 
 
+def test_inconsistent_orientation_is_named():
+    cells = SHEET.cells.copy()
+    cells[5] = cells[5][::-1]
+    _bad(sheet(cells=cells), "not consistently oriented")
+
+
 def test_bowtie_node_is_named():
     rest = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [-1, 0, 0], [0, 0, -1]], float)
     cells = np.array([[0, 1, 2], [0, 3, 4]])
