@@ -33,9 +33,9 @@ class DataConfig:
     """Which data a run uses. Every field but `root` decides the dataset directory."""
 
     scene: str = "flag"
-    """Scene name (a scene plugin): flag, flag-stiff, flag-storm, flag-large-dt, cylinder, ..."""
+    """Scene name (a scene plugin): flag, flag-stiff, flag-storm, flag-large-dt, cylinder, or a plugin's own cloth."""
     resolution: list[int] | str = field(default_factory=lambda: [16, 8])
-    """Mesh resolution: [nx, ny] nodes for flags ([around, along] for the cylinder) or 'flagsimple' (1579 nodes)."""
+    """Mesh resolution: [nx, ny] nodes for flags ([around, along] for the cylinder) or 'flagsimple' (1579 nodes); a mesh cloth ignores it."""
     num_train: int = 4
     """Training trajectories (paper: 100). The second half is the 'viewed' test group."""
     num_test: int = 2

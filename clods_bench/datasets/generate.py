@@ -88,12 +88,31 @@ def render_trajectory(
 
 
 def scene_fingerprint(scene: SceneSpec) -> str:
-    """Hash of everything a scene defines (physics, ranges, warm-up): a dataset made from an edited scene
+    """Hash of everything a scene defines (cloth, physics, ranges, warm-up): a dataset made from an edited scene
     definition is reported as made with a different config instead of being reused."""
     fields: object = repr(scene)
     if dataclasses.is_dataclass(scene):
-        fields = {k: v for k, v in dataclasses.asdict(scene).items() if k != "description"}  # prose changes no data
+        fields = scene_identity(scene)
     return hashlib.sha256(json.dumps(fields, sort_keys=True, default=repr).encode()).hexdigest()[:16]
+
+
+def scene_identity(scene: SceneSpec) -> dict[str, Any]:
+    """The scene's fields (not its prose) with its cloth's identity merged in at the top level.
+
+    Flat, so the built-in flag and cylinder (whose cloths contribute kind, size and default_resolution)
+    keep the fingerprints they had when those were scene fields: their datasets stay valid.
+    """
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(scene):
+        if f.name in ("description", "cloth"):  # prose changes no data; the cloth is merged below
+            continue
+        value = getattr(scene, f.name)
+        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+    cloth = scene.cloth.identity()
+    clash = sorted(set(cloth) & set(out))
+    if clash:
+        raise ClodsError(f"cloth fields {clash} have the names of scene fields", where=f"scene {scene.name}", hint="rename them")
+    return {**out, **cloth}
 
 
 @dataclass(frozen=True)
