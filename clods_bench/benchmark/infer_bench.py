@@ -190,7 +190,8 @@ def _result(cfg: "RunConfig", sim: str, renderer: str, device: str, fit_iteratio
              "both renderers draw the true mesh of the same frame; simulators step from the true frames",
              f"medians of {frames} timed frames after 1 untimed frame"]  # fmt: skip
     if device != "cpu":
-        notes.append(f"{renderer} renders with backend gsplat on {device} (vertices moved there inside the timing); the simulators run on the CPU")
+        notes.append(f"{renderer} renders with backend gsplat on {device} (vertices moved there inside the timing); both simulators "
+                     "and the rasterizer run on the CPU (they have no GPU path)")  # fmt: skip
     result: dict[str, Any] = {"preset": cfg.preset, "scene": d.scene, "sim": sim, "renderer": renderer, "reference_sim": REFERENCE_SIM,
                               "device": device, "frames": frames, "dt": float(traj.dt), "counts": counts, "caps": caps, "notes": notes,
                               "threads": threads,

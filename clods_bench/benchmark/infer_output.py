@@ -108,22 +108,30 @@ def plot_infer(results: list[dict[str, Any]], path: Path) -> None:
             ax.bar(x, heights, bottom=bottom, color=colors[part], label=PART_NAMES[part], width=0.6)
             bottom = [b + h for b, h in zip(bottom, heights)]
         for xi, p in zip(x, PIPELINES):
-            ax.annotate(f"{r[p]['total_ms']:.3g} ms", (xi, r[p]["total_ms"]), ha="center", va="bottom", fontsize=8,
+            ax.annotate(_ms(r[p]["total_ms"]), (xi, r[p]["total_ms"]), ha="center", va="bottom", fontsize=8,
                         xytext=(0, 2), textcoords="offset points")  # fmt: skip
         ax.set_xticks(x, [f"{PIPELINE_NAMES[p]}\n{r['sim'] if p == 'clods' else r['reference_sim']}+"
                           f"{r['renderer'] if p == 'clods' else 'raster'}" for p in PIPELINES], fontsize=8)  # fmt: skip
         ax.set_ylim(0, max(bottom) * 1.15 if max(bottom) > 0 else 1.0)
         c = r["counts"]
+        t = r.get("threads", {})
         ax.set_title(f"{result_label(r)}\n{c['nodes']} nodes, {c['views']} x {c['width']}px, {c['gaussians']} Gaussians\n"
+                     f"{r['device']}, threads torch {t.get('torch')} / numba {t.get('numba')}" + (f" (cap {t['cap']})" if t.get("cap") else "") + "\n"
                      f"traditional / CloDS = {ratio(r):.2f}", fontsize=8)  # fmt: skip
         ax.grid(True, axis="y", alpha=0.3)
         if ax is axes[0][0]:
             ax.set_ylabel("ms per frame (median)")
-            ax.legend(fontsize=8, loc="upper left")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(PARTS), fontsize=8)
     fig.suptitle("Inference time per frame: CloDS (learned step + Gaussian splatting) vs traditional (solver step + rasterizer)", fontsize=9)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)
+
+
+def _ms(value: float) -> str:
+    """A bar's total: whole ms from 100 ms up, else one decimal."""
+    return f"{value:,.0f} ms" if value >= 100 else f"{value:.1f} ms"
 
 
 def infer_table(results: list[dict[str, Any]]) -> pd.DataFrame:
