@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("report"))
     p.add_argument("--metric", default="unviewed/extrap/d_avg", help="CDG metric on the error axis (group/phase/stat)")
+    p.add_argument("--bench", type=Path, default=Path("bench"), help="folder of `bench infer` results shown in the report when present (default bench)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("reproduce", help="run the paper's tables from the reproduce plan; tables + manifest.json into --out")
@@ -116,19 +117,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
                         "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
-                        "store: frame store bytes and read speed vs raw .npy")  # fmt: skip
+                        "store: frame store bytes and read speed vs raw .npy; "
+                        "infer: ms per frame of CloDS (learned step + SMGS render of every view) vs the traditional pipeline "
+                        "(physics solver step + ground-truth rasterizer) at --preset size")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
-                   "cameras and task_config.clods are used (default: ci)")  # fmt: skip
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store: config override, e.g. data.root=DIR")
+                   "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer: config override, e.g. data.root=DIR")
     p.add_argument("--blocks", type=int, default=None,
                    help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
                         "and extrapolate the bytes (default: every frame)")  # fmt: skip
     p.add_argument("--steps", type=int, default=400, help="data: solver steps to time")
-    p.add_argument("--views", type=int, default=8, help="data/render: views to render")
+    p.add_argument("--views", type=int, default=None, help="data/render: views to render (default 8); infer: render only this many of "
+                   "the preset's cameras (a cap, reported; default all)")  # fmt: skip
     p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
     p.add_argument("--repeats", type=int, default=3, help="render: timed repeats (minimum reported)")
     p.add_argument("--gsplat", action=argparse.BooleanOptionalAction, default=None,
@@ -136,8 +140,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
                    help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
-    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames; stage2: frames to extract")
-    p.add_argument("--fit-iterations", type=int, default=60, help="stage2: renderer fit iterations on frame 0 before timing")
+    p.add_argument("--frames", type=int, default=None, help="sim: rollout length in frames (default 12); stage2: frames to extract "
+                   "(default 12); infer: frames timed after one untimed frame (default 5)")  # fmt: skip
+    p.add_argument("--fit-iterations", type=int, default=None,
+                   help="stage2: renderer fit iterations on frame 0 before timing (default 60); infer: the same (default 0: initial parameters)")  # fmt: skip
+    p.add_argument("--sim", default="mgn", help="infer: CloDS's learned simulator (default mgn; untrained weights, the preset's size)")
+    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU")
+    p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
+    p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
     p.set_defaults(func=cmd_bench)
     return parser
 
@@ -283,7 +293,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.html_report import build_html_report
 
-    paths = build_html_report(args.runs, args.out, args.metric)
+    paths = build_html_report(args.runs, args.out, args.metric, bench_dir=args.bench)
     console.print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -363,10 +373,22 @@ def cmd_seed_spread(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    views = 8 if args.views is None else args.views
+    frames = 12 if args.frames is None else args.frames
+    fit_iterations = 60 if args.fit_iterations is None else args.fit_iterations
     if args.what == "data":
         from clods_bench.benchmark.bench import bench_data
 
-        bench_data(console, steps=args.steps, views=args.views)
+        bench_data(console, steps=args.steps, views=views)
+    elif args.what == "infer":
+        from clods_bench.benchmark.config import load_config
+        from clods_bench.benchmark.infer_bench import check_device
+        from clods_bench.benchmark.infer_output import print_bench_infer
+
+        check_device(args.device)  # before any work: one line when CUDA is absent
+        cfg = load_config(args.preset, None, list(args.overrides))
+        print_bench_infer(console, cfg, args.out, progress=not args.no_progress, sim=args.sim, frames=5 if args.frames is None else args.frames,
+                          views=args.views, device=args.device, fit_iterations=args.fit_iterations or 0)  # fmt: skip
     elif args.what == "store":
         from clods_bench.benchmark.config import load_config
         from clods_bench.datasets.store_bench import print_bench_store
@@ -376,17 +398,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
     elif args.what == "render":
         from clods_bench.plugins.splatting.bench import print_bench_render
 
-        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views, gsplat=args.gsplat,
+        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
     elif args.what == "stage2":
         from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
 
-        print_bench_stage2(console, preset=args.preset, frames=args.frames, fit_iterations=args.fit_iterations,
+        print_bench_stage2(console, preset=args.preset, frames=frames, fit_iterations=fit_iterations,
                            backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
         from clods_bench.benchmark.sim_bench import bench_sim
 
-        bench_sim(console, sims=args.sims, frames=args.frames)
+        bench_sim(console, sims=args.sims, frames=frames)
     return 0
 
 
