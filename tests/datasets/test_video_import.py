@@ -148,7 +148,7 @@ def test_mp4_round_trip_is_within_the_codec_error(original: DatasetStore, export
     for i in sorted(original.completed_indices()):
         a, b = original.load_frames(i).astype(np.float64), imp.load_frames(i).astype(np.float64)
         psnr = 10 * np.log10(255.0**2 / np.mean((a - b) ** 2))
-        assert psnr > 45.0, psnr  # measured 50-57 dB: lossless H.264 in YUV 4:4:4, only the colour conversion rounds
+        assert psnr > 45.0, psnr  # lossless H.264 in YUV 4:4:4: only the colour conversion rounds (56.5 dB at worst on ci)
 
 
 def test_mp4_without_pyav_is_one_clear_line(exported: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, original) -> None:
@@ -310,3 +310,25 @@ def test_existing_output_is_refused_without_force(exported: Path, tmp_path: Path
     out.mkdir()
     (out / "keep.txt").write_text("old")
     _refused(_captures(exported / "ply"), out, "exists and is not empty", str(out))
+
+
+# ------------------------------------------------------------------ command line
+
+
+def test_cli_export_and_import(original: DatasetStore, tiny_root: Path, tmp_path: Path, capsys) -> None:
+    from clods_bench.benchmark.cli import main
+    from tests.conftest import TINY
+
+    sets = [a for s in [*TINY, f"data.root={tiny_root / 'data'}"] for a in ("--set", s)]
+    assert main(["data", "export", *sets, "--format", "nerf", "--traj", "0", "2", "--out", str(tmp_path / "nerf")]) == 0
+    caps = _captures(tmp_path / "nerf")
+    assert [c.parent.name for c in caps] == ["traj_0000", "traj_0002"]
+    assert main(["data", "import-video", *map(str, caps), "--out", str(tmp_path / "imp")]) == 0
+    assert "run on it with --set data.path=" in capsys.readouterr().out.replace("\n", "")
+    imp = DatasetStore.open(tmp_path / "imp")
+    assert np.array_equal(imp.load_frames(1), original.load_frames(2)) and imp.entry(1)["split"] == "test"
+    _edit(caps[0], lambda d: d["frames"][0].pop("transform_matrix"))
+    assert main(["data", "import-video", *map(str, caps), "--out", str(tmp_path / "imp2")]) == 2
+    err = capsys.readouterr().err
+    assert "frames[0].transform_matrix: missing" in err.replace("\n", "") and not (tmp_path / "imp2").exists()
+    assert main(["data", "export", *sets, "--format", "obj", "--meshes", "ply", "--out", str(tmp_path / "o")]) == 2
