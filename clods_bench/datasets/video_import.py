@@ -29,7 +29,7 @@ import numpy as np
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.nerf import TOPOLOGY, camera_from_c2w_gl, check_c2w, read_transforms
 from clods_bench.datasets.splits import SPLITS
-from clods_bench.datasets.store import MANIFEST, DatasetStore
+from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 
@@ -46,6 +46,7 @@ VIDEO_HINT = 'reading videos needs PyAV: pip install "clods-bench[video]" (the `
 
 
 def _av() -> Any:
+    """The PyAV module, or None when the optional `video` extra is not installed."""
     try:
         import av
     except ImportError:
@@ -423,4 +424,4 @@ def _same_camera(a: Camera, b: Camera) -> bool:
     return (a.width, a.height) == (b.width, b.height) and all(np.allclose(getattr(a, k), getattr(b, k), atol=1e-9) for k in ("K", "R", "t"))
 
 
-__all__ = ["import_video", "parse_capture", "capture_steps", "load_mesh_sequence", "BACKGROUND", "MANIFEST"]
+__all__ = ["import_video", "parse_capture", "capture_steps", "load_mesh_sequence", "BACKGROUND"]
