@@ -50,12 +50,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=None, help="number of trajectories to convert")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     p.set_defaults(func=cmd_data_import)
-    p = dsub.add_parser("export", help="write a stored trajectory as an OBJ/PLY sequence")
+    p = dsub.add_parser("export", help="write a stored trajectory as an OBJ/PLY sequence, or the dataset in the NeRF layout")
     _add_config_args(p)
-    p.add_argument("--traj", type=int, default=0)
-    p.add_argument("--format", choices=("obj", "ply"), default="obj")
+    p.add_argument("--traj", type=int, nargs="+", default=None,
+                   help="trajectories (default: 0 for obj/ply, every one for nerf)")  # fmt: skip
+    p.add_argument("--format", choices=("obj", "ply", "nerf"), default="obj",
+                   help="obj/ply: one mesh file per frame; nerf: per trajectory a transforms.json (camera-to-world, OpenGL "
+                        "axes) and a PNG folder per camera")  # fmt: skip
+    p.add_argument("--meshes", choices=("obj", "ply", "none"), default="none", help="nerf: also write the meshes per frame")
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=cmd_data_export)
+    p = dsub.add_parser("import-video", help="a dataset from your own multi-view captures (image folders or videos + transforms.json)")
+    p.add_argument("transforms", type=Path, nargs="+", help="one transforms.json per capture (each becomes one trajectory)")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write (run on it with --set data.path=DIR)")
+    p.add_argument("--masks", help="folder (relative to each transforms.json) with a subfolder of mask images per camera")
+    p.add_argument("--meshes", help="folder (relative to each transforms.json) with one OBJ/PLY per frame (+ topology.npz)")
+    p.add_argument("--num-views-test", type=int, help="held-out cameras for NVS (default: transforms.json's, else 1 per 6 cameras)")
+    p.add_argument("--interp-steps", type=int, help="last interpolation frame (default: transforms.json's, else 3/4 of the frames)")
+    p.add_argument("--fps", type=float, help="frame rate when neither transforms.json nor the videos give one")
+    p.add_argument("--force", action="store_true", help="replace a non-empty --out (only once the import has succeeded)")
+    p.set_defaults(func=cmd_data_import_video)
 
     p = sub.add_parser("run", help="run a task: cdg, nvs, stability, dvc, ...")
     p.add_argument("task", help="task name")
@@ -225,8 +239,34 @@ def cmd_data_export(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     store = DatasetStore.open(cfg.data.dataset_dir())
-    paths = export_sequence(store.load_trajectory(args.traj), args.out, args.format)
-    console.print(f"wrote {len(paths)} {args.format.upper()} files to {args.out}")
+    if args.format == "nerf":
+        from clods_bench.datasets.nerf import export_nerf
+
+        folders = export_nerf(store, args.out, args.meshes, args.traj, store.config.get("num_views_test"), store.config.get("interp_steps"))
+        console.print(f"wrote {len(folders)} trajectory folders (transforms.json + PNG per camera and frame) to {args.out}")
+        return 0
+    if args.meshes != "none":
+        raise ClodsError("--meshes applies to --format nerf", where="--meshes", hint="--format obj|ply writes meshes already")
+    total = 0
+    for traj in args.traj or [0]:
+        out = args.out if not args.traj or len(args.traj) == 1 else args.out / f"traj_{traj:04d}"
+        total += len(export_sequence(store.load_trajectory(traj), out, args.format))
+    console.print(f"wrote {total} {args.format.upper()} files to {args.out}")
+    return 0
+
+
+def cmd_data_import_video(args: argparse.Namespace) -> int:
+    import time
+
+    from clods_bench.datasets.video_import import import_video
+
+    t0 = time.perf_counter()
+    store = import_video(args.transforms, args.out, masks=args.masks, meshes=args.meshes, num_views_test=args.num_views_test,
+                         interp_steps=args.interp_steps, fps=args.fps, force=args.force)  # fmt: skip
+    cfg = store.config
+    console.print(f"imported {len(store)} trajectories ({cfg['num_cameras']} cameras, {cfg['num_steps']} frames, "
+                  f"{cfg['width']}x{cfg['height']}, meshes: {'yes' if store.has_meshes else 'no'}) into {store.root} "
+                  f"in {time.perf_counter() - t0:.1f} s; run on it with --set data.path={store.root}")  # fmt: skip
     return 0
 
 

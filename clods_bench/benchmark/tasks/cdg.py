@@ -21,6 +21,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     cfg = ctx.config
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    store.require_meshes("task cdg")
     clods_extra: dict[str, object] = {}
     t0 = time.perf_counter()
     if cfg.renderer:  # learned from video: the CloDS pipeline (stages 1-3) replaces mesh supervision

@@ -157,6 +157,8 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
     opts = dvc_options(ctx)
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    if not use_predictor:
+        store.require_meshes(f"dvc with a simulator and renderer (--sim {cfg.sim} --renderer {cfg.renderer})")
     cams = store.cameras()
     views = _views(opts, splits)
     view_cams = [cams[v] for v in views]

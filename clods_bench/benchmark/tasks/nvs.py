@@ -11,6 +11,10 @@ first half of each (paper: 200 of 400 steps), fitted on the training cameras of 
 scored on the held-out cameras (`SplitSpec.test_views`: `num_views_test` spread evenly through the rig)
 at every scored frame, frame 0 included. "3DGS, trained separately per frame" is a renderer
 whose object has `per_frame = True`: it is fitted anew on every scored frame.
+
+On a dataset without meshes (imported from video) only per-frame renderers run: each frame's proxy geometry is the
+bounding box of the foreground's visual hull in the training views (`datasets.visual_hull`), in which 3DGS places
+its Gaussians (`renderer_config.gs3d.init=random` fills the box; the default 'visible' samples its faces).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.benchmark.media import write_image_grid
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.visual_hull import box_mesh, hull_box
 from clods_bench.errors import ClodsError
 
 GRID_FILE = "nvs_grid.png"
@@ -100,6 +105,9 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     if splits.num_views_test < 1:
         raise ClodsError("NVS needs held-out cameras", where="data.num_views_test", hint="set it to 1 or more")
     store = DatasetStore.open(cfg.data.dataset_dir())
+    proxy = not store.has_meshes
+    if proxy and not is_per_frame(build_renderer(ctx)):
+        store.require_meshes(f"renderer '{cfg.renderer}' (it anchors to the per-frame ground-truth meshes)")
     cams = store.cameras()
     train_cams = [cams[v] for v in splits.train_views]
     test_cams = [cams[v] for v in splits.test_views]
@@ -121,26 +129,27 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames))
         for i in traj_ids:
-            traj = store.load_trajectory(i)
+            traj = None if proxy else store.load_trajectory(i)
             video = _Frames(store.frames(i), sorted({0, *frames}), train_idx + test_idx)  # only the frames and views scored or fitted
             traj_scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
             renderer = None
             for n, t in enumerate(frames):
+                if proxy:  # no meshes: the frame's visual-hull box from the training views
+                    verts, cells, mesh_pos = box_mesh(*hull_box(video[t, train_idx], train_cams))
+                else:
+                    verts, cells, mesh_pos = traj.world_pos[t].astype(np.float32), traj.cells, traj.mesh_pos
                 if renderer is None or per_frame:
                     renderer = build_renderer(ctx)
                     per_frame = is_per_frame(renderer)
-                    fit_t = t if per_frame else 0
+                    fit_verts = verts if per_frame else traj.world_pos[0].astype(np.float32)
                     t0 = time.perf_counter()
-                    stats = renderer.fit(
-                        traj.world_pos[fit_t][None].astype(np.float32), traj.cells, traj.mesh_pos,
-                        _to_float(video[fit_t, train_idx])[None], train_cams,
-                    )  # fmt: skip
+                    stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
                     fit_seconds += time.perf_counter() - t0
                     fits += 1
                     fit_stats.append(stats or {})
                 t0 = time.perf_counter()
                 with torch.no_grad():
-                    out = renderer.render(torch.from_numpy(traj.world_pos[t].astype(np.float32)), test_cams)
+                    out = renderer.render(torch.from_numpy(verts), test_cams)
                 render_seconds += time.perf_counter() - t0
                 pred = as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 gt = _to_float(video[t, test_idx])
@@ -174,6 +183,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "train_views": train_idx,
         "test_views": test_idx,
         "per_frame": bool(per_frame),
+        "geometry": "visual-hull box (dataset without meshes)" if proxy else "ground-truth meshes",
         "fits": fits,
         "images": images,
         "per_trajectory": per_traj,

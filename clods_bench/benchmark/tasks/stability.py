@@ -206,6 +206,7 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     splits = split_spec(ctx)
     scene = ctx.registry.get("scene", cfg.data.scene)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    store.require_meshes("task stability")
     sim = build_simulator(ctx)
     name = cfg.sim or "?"
 
