@@ -233,21 +233,25 @@ def _pipeline() -> Any:
     return pipeline
 
 
-def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, float], str, dict[int, np.ndarray]]:
-    """The simulator for the rollouts, from the training videos (CloDS stages 1-3) or the ground-truth meshes; with
-    the video-trained one also the meshes stage 2 recovered per training trajectory (frames 0..interp_steps)."""
+def _train_simulator(
+    ctx: TaskContext, sim_training: str, train_ids: list[int] | None = None, where: str = f"{WHERE}.sim_training"
+) -> tuple[Any, dict[str, float], str, dict[int, np.ndarray]]:
+    """The simulator for the rollouts, from the training videos (CloDS stages 1-3) or the ground-truth meshes of
+    `train_ids` (default: every training trajectory, or the first half with `train_subset`); with the video-trained
+    one also the meshes stage 2 recovered per training trajectory (frames 0..interp_steps)."""
     cfg = ctx.config
     splits = split_spec(ctx)
-    train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
+    if train_ids is None:
+        train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
     pipeline = _pipeline()
     have_video = pipeline is not None and hasattr(pipeline, "train_from_video")
-    mode = ("video" if have_video else "mesh") if opts.sim_training == "auto" else opts.sim_training
+    mode = ("video" if have_video else "mesh") if sim_training == "auto" else sim_training
     t0 = time.perf_counter()
     extracted: dict[int, np.ndarray] = {}
     if mode == "video":
         if not have_video:
             raise ClodsError("the CloDS pipeline (clods_bench.benchmark.clods.pipeline.train_from_video) is not available",
-                             where=f"{WHERE}.sim_training", hint="set task_config.dvc.sim_training=mesh")  # fmt: skip
+                             where=where, hint=f"set {where}=mesh")  # fmt: skip
         if hasattr(pipeline, "run_pipeline"):
             result = pipeline.run_pipeline(ctx, train_ids)
             sim, stats = result.simulator, result.stats
@@ -307,7 +311,7 @@ def _run_simulator(
     splits = split_spec(ctx)
     train_views = list(splits.train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    sim, timings, mode, extracted = _train_simulator(ctx, opts)
+    sim, timings, mode, extracted = _train_simulator(ctx, opts.sim_training)
     trajs = {i: store.load_trajectory(i) for i in traj_ids}
     t0 = time.perf_counter()
     renderer, render_stats = _fit_renderer(ctx, list(trajs.values()), np.stack([_float(store.frames(i)[0, train_views]) for i in traj_ids]), train_cams)
