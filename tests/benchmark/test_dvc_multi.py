@@ -177,7 +177,7 @@ class Interrupt(Exception):
 
 
 def test_resumed_run_ends_with_the_uninterrupted_weights(tiny_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    whole, whole_dir, _ = _run(tiny_root, tmp_path / "whole", *SIMVP, predictor="simvp")
+    whole, _, _ = _run(tiny_root, tmp_path / "whole", *SIMVP, predictor="simvp")
     save = WindowPredictor._save
 
     def save_then_stop(self: WindowPredictor[Any], path: Path, digest: str, step: int, *rest: Any) -> None:
@@ -188,14 +188,28 @@ def test_resumed_run_ends_with_the_uninterrupted_weights(tiny_root: Path, tmp_pa
         patch.setattr(WindowPredictor, "_save", save_then_stop)
         with pytest.raises(Interrupt, match="3"):
             _run(tiny_root, tmp_path / "cut", *SIMVP, predictor="simvp")
-    resumed, cut_dir, _ = _run(tiny_root, tmp_path / "cut", *SIMVP, predictor="simvp")
-    a = torch.load(whole_dir / "seed_0" / "simvp.pt", weights_only=True)
-    b = torch.load(cut_dir / "seed_0" / "simvp.pt", weights_only=True)
+    resumed, _, _ = _run(tiny_root, tmp_path / "cut", *SIMVP, predictor="simvp")
+    (whole_ckpt,) = (tmp_path / "whole" / "fit_cache").glob("simvp-*/simvp.pt")
+    (cut_ckpt,) = (tmp_path / "cut" / "fit_cache").glob("simvp-*/simvp.pt")
+    a, b = torch.load(whole_ckpt, weights_only=True), torch.load(cut_ckpt, weights_only=True)
     assert a["step"] == b["step"] == 6 and a["digest"] == b["digest"]
     for key in a["model"]:
         assert torch.equal(a["model"][key], b["model"][key]), key
     assert resumed["metrics"] == whole["metrics"]
     assert whole["per_seed"]["0"]["timings"]["fit/train_windows"] == 2 * (9 - 6 + 1)  # 2 trajectories x 1 view
+
+
+def test_table4_and_multi_rows_on_the_same_videos_share_one_fit(tiny_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """At these sizes Table 4's DVC row and this task train SimVP on the same videos (trajectories 0-1, camera 2,
+    frames 0..8): the second run loads the first's checkpoint, trains no step, and counts its recorded cost."""
+    runs = tmp_path / "runs"
+    cfg = tiny_config(tiny_root, f"runs_dir={runs}", "task_config.dvc.lpips=false", *SIMVP, task="dvc", predictor="simvp")
+    table4 = json.loads((run_task(cfg, default_registry()) / RECORD_FILE).read_text())["per_seed"]["0"]["timings"]
+    monkeypatch.setattr(WindowPredictor, "loss", lambda *a: pytest.fail("trained again"))
+    multi = _run(tiny_root, runs, *SIMVP, predictor="simvp")[0]["per_seed"]["0"]["timings"]
+    assert len(list((runs / "fit_cache").glob("simvp-*"))) == 1
+    assert multi["fit/train_seconds"] == table4["fit/train_seconds"] > 0  # the recorded training time, not the load's
+    assert multi["fit_seconds"] == pytest.approx(table4["fit/train_seconds"]) and multi["fit_wall_seconds"] < multi["fit_seconds"]
 
 
 def test_bad_input_is_one_clear_error(tiny_root: Path, tmp_path: Path) -> None:

@@ -25,13 +25,13 @@ import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.atomic import atomic_path
+from clods_bench.atomic import atomic_path, file_lock
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput, VideoPredictor, check_prediction, check_rollout
 from clods_bench.benchmark.metrics import divergence_step
-from clods_bench.benchmark.fit_cache import fit_cost_seconds
+from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
 from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.tasks.nvs import _as_images, _write_grid, build_renderer
 from clods_bench.datasets.store import DatasetStore
@@ -99,6 +99,25 @@ def build_predictor(ctx: TaskContext) -> VideoPredictor:
     if not isinstance(pred, VideoPredictor):
         raise ClodsError("plugin did not return a VideoPredictor (needs fit() and predict())", where=f"video predictor '{cfg.predictor}'")
     return pred
+
+
+def fit_predictor(
+    ctx: TaskContext, pred: VideoPredictor, videos: list[np.ndarray], train_ids: list[int], views: list[int], frames: int
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Fit `pred` on `videos` (frames 0..frames-1 of the `views` of `train_ids`); return (fit statistics, timings).
+
+    A learned predictor trains in a content-addressed work directory (`fit_work_dir`), so the DVC rows and the
+    multi-trajectory rows that train on the same videos share one training; `fit_seconds` counts a fit found
+    finished at its recorded training time, `fit_wall_seconds` is this call's.
+    """
+    cfg = ctx.config
+    learned = ctx.registry.get("video_predictor", cfg.predictor).learned
+    work = fit_work_dir(ctx, predictor_fit_identity(ctx, train_ids, views, frames)) if learned else ctx.work_dir
+    t0 = time.perf_counter()
+    with file_lock(Path(work) / "fit.lock"):  # a parallel job training the same fit: wait, then load its checkpoint
+        stats = dict(pred.fit(videos, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {})
+    wall = time.perf_counter() - t0
+    return stats, {"fit_seconds": fit_cost_seconds(wall, stats), "fit_wall_seconds": wall}
 
 
 def _views(opts: DvcConfig, splits: Any) -> list[int]:
@@ -203,9 +222,7 @@ def _run_predictor(
     pred = build_predictor(ctx)
     clips = {i: _float(store.frames(i)[:, views]).transpose(1, 0, 2, 3, 4) for i in traj_ids}  # (N,T,H,W,3), scored views only
     train = [clip[v, :observed] for clip in clips.values() for v in range(len(views))]
-    t0 = time.perf_counter()
-    stats = pred.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress)) or {}
-    fit_seconds = time.perf_counter() - t0
+    stats, timings = fit_predictor(ctx, pred, train, traj_ids, views, observed)
     predict_seconds, videos = 0.0, {}
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"dvc ({cfg.predictor})", total=len(traj_ids))
@@ -219,7 +236,7 @@ def _run_predictor(
             videos[i] = (clip[:, future], out)
             bar.advance(job)
     images = len(traj_ids) * len(future) * len(views)
-    timings = {"fit_seconds": fit_seconds, "predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)}
+    timings.update({"predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)})
     timings.update({f"fit/{k}": float(v) for k, v in stats.items()})
     return videos, timings, {"train_videos": len(train), "context_frames": observed}
 

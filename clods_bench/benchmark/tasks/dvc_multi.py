@@ -32,10 +32,10 @@ import torch
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
 from clods_bench.benchmark.metrics import divergence_step
 from clods_bench.benchmark.tasks.cdg import split_spec
-from clods_bench.benchmark.tasks.dvc import _fit_renderer, _float, _Scores, _train_simulator, _video_frames, build_predictor, write_video
+from clods_bench.benchmark.tasks.dvc import _fit_renderer, _float, _Scores, _train_simulator, _video_frames, build_predictor, fit_predictor, write_video
 from clods_bench.benchmark.tasks.nvs import _as_images
 from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
@@ -252,9 +252,7 @@ def _run_predictor(
     check_context(str(cfg.predictor), pred, split)
     train_clips = {i: _read(store, i, split.observed + len(split.extrap_frames), views) for i in split.train_ids}
     train = training_videos(train_clips, split.observed)
-    t0 = time.perf_counter()
-    stats = pred.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress)) or {}
-    fit_seconds = time.perf_counter() - t0
+    stats, timings = fit_predictor(ctx, pred, train, split.train_ids, views, split.observed)  # shared with Table 4's fit on the same videos
     predict_seconds, videos = 0.0, {}
     for s in SPLITS:
         ids, given, frames = split.scored(s)
@@ -268,7 +266,7 @@ def _run_predictor(
                 scores[s].add(i, t, out[:, k], clip[:, t])
             videos.setdefault(s, (i, clip[:, frames], out))
     images = sum(len(split.scored(s)[0]) * len(split.scored(s)[2]) for s in SPLITS) * len(views)
-    timings = {"fit_seconds": fit_seconds, "predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)}
+    timings.update({"predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)})
     timings.update({f"fit/{k}": float(v) for k, v in stats.items()})
     return videos, timings, {"train_videos": len(train)}
 
