@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("tables"))
-    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, extract, or all (every task with records; default)")
+    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, dvc_multi, extract, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
     p = sub.add_parser("report", help="HTML report (report/index.html): every table, error-vs-time and rollout plots, NVS grids, DVC media")
@@ -317,7 +317,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.tables import write_tables
 
     if args.task == "all":
-        tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "extract") if any(True for _ in iter_records(args.runs, t))]
+        tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "dvc_multi", "extract") if any(True for _ in iter_records(args.runs, t))]
         if not tasks:
             raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     else:

@@ -22,7 +22,7 @@ from clods_bench.errors import ClodsError
 INDEX_FILE = "index.html"
 MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4", ".webm": "video/webm"}
 MAX_EMBED_BYTES = 25 * 2**20  # larger media are linked by path instead of embedded
-TASK_ORDER = ("cdg", "nvs", "dvc", "stability", "extract")
+TASK_ORDER = ("cdg", "nvs", "dvc", "dvc_multi", "stability", "extract")
 INFER_ANCHOR = "bench-infer"
 
 STYLE = """

@@ -229,7 +229,7 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
     if task in ("cdg", "stability"):
         display, numeric = (tables.cdg_frame if task == "cdg" else tables.stability_frame)(records)
         return display, numeric, ""
-    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame}
+    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame, "dvc_multi": tables.dvc_multi_frame}
     if task in layouts:
         display, numeric, notes = layouts[task](records)
         return display, numeric, "; ".join(notes)
