@@ -50,12 +50,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=None, help="number of trajectories to convert")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     p.set_defaults(func=cmd_data_import)
-    p = dsub.add_parser("export", help="write a stored trajectory as an OBJ/PLY sequence")
+    p = dsub.add_parser("export", help="write a stored trajectory as an OBJ/PLY sequence, or the dataset in the NeRF layout")
     _add_config_args(p)
-    p.add_argument("--traj", type=int, default=0)
-    p.add_argument("--format", choices=("obj", "ply"), default="obj")
+    p.add_argument("--traj", type=int, nargs="+", default=None,
+                   help="trajectories (default: 0 for obj/ply, every one for nerf)")  # fmt: skip
+    p.add_argument("--format", choices=("obj", "ply", "nerf"), default="obj",
+                   help="obj/ply: one mesh file per frame; nerf: per trajectory a transforms.json (camera-to-world, OpenGL "
+                        "axes) and a PNG folder per camera")  # fmt: skip
+    p.add_argument("--meshes", choices=("obj", "ply", "none"), default="none", help="nerf: also write the meshes per frame")
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=cmd_data_export)
+    p = dsub.add_parser("import-video", help="a dataset from your own multi-view captures (image folders or videos + transforms.json)")
+    p.add_argument("transforms", type=Path, nargs="+", help="one transforms.json per capture (each becomes one trajectory)")
+    p.add_argument("--out", type=Path, required=True, help="dataset directory to write (run on it with --set data.path=DIR)")
+    p.add_argument("--masks", help="folder (relative to each transforms.json) with a subfolder of mask images per camera")
+    p.add_argument("--meshes", help="folder (relative to each transforms.json) with one OBJ/PLY per frame (+ topology.npz)")
+    p.add_argument("--num-views-test", type=int, help="held-out cameras for NVS (default: transforms.json's, else 1 per 6 cameras)")
+    p.add_argument("--interp-steps", type=int, help="last interpolation frame (default: transforms.json's, else 3/4 of the frames)")
+    p.add_argument("--fps", type=float, help="frame rate when neither transforms.json nor the videos give one")
+    p.add_argument("--force", action="store_true", help="replace a non-empty --out (only once the import has succeeded)")
+    p.set_defaults(func=cmd_data_import_video)
 
     p = sub.add_parser("run", help="run a task: cdg, nvs, stability, dvc, ...")
     p.add_argument("task", help="task name")
@@ -74,13 +88,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("tables"))
-    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, extract, or all (every task with records; default)")
+    p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, dvc_multi, extract, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
     p = sub.add_parser("report", help="HTML report (report/index.html): every table, error-vs-time and rollout plots, NVS grids, DVC media")
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--out", type=Path, default=Path("report"))
     p.add_argument("--metric", default="unviewed/extrap/d_avg", help="CDG metric on the error axis (group/phase/stat)")
+    p.add_argument("--bench", type=Path, default=Path("bench"), help="folder of `bench infer` results shown in the report when present (default bench)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("reproduce", help="run the paper's tables from the reproduce plan; tables + manifest.json into --out")
@@ -93,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", nargs="+", default=[], metavar="TABLE", help="only these table ids of the plan")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override applied to every run")
     p.add_argument("--check", type=Path, metavar="DIR", help="then compare the fresh CSVs with the committed ones in DIR (exit 1 on a moved number)")
+    p.add_argument(
+        "--first-seeds",
+        type=int,
+        metavar="K",
+        help="run only the first K seeds of every run (a quicker --check: seed-to-seed std columns are then not compared)",
+    )
     p.add_argument("--dry-run", action="store_true", help="check the plan and list its runs, run nothing")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
     p.set_defaults(func=cmd_reproduce)
@@ -110,19 +131,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
                         "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
-                        "store: frame store bytes and read speed vs raw .npy")  # fmt: skip
+                        "store: frame store bytes and read speed vs raw .npy; "
+                        "infer: ms per frame of CloDS (learned step + SMGS render of every view) vs the traditional pipeline "
+                        "(physics solver step + ground-truth rasterizer) at --preset size")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
-                   "cameras and task_config.clods are used (default: ci)")  # fmt: skip
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store: config override, e.g. data.root=DIR")
+                   "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer: config override, e.g. data.root=DIR")
     p.add_argument("--blocks", type=int, default=None,
                    help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
                         "and extrapolate the bytes (default: every frame)")  # fmt: skip
     p.add_argument("--steps", type=int, default=400, help="data: solver steps to time")
-    p.add_argument("--views", type=int, default=8, help="data/render: views to render")
+    p.add_argument("--views", type=int, default=None, help="data/render: views to render (default 8); infer: render only this many of "
+                   "the preset's cameras (a cap, reported; default all)")  # fmt: skip
     p.add_argument("--size", type=int, default=128, help="render: image side in pixels")
     p.add_argument("--repeats", type=int, default=3, help="render: timed repeats (minimum reported)")
     p.add_argument("--gsplat", action=argparse.BooleanOptionalAction, default=None,
@@ -130,8 +154,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
                    help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
-    p.add_argument("--frames", type=int, default=12, help="sim: rollout length in frames; stage2: frames to extract")
-    p.add_argument("--fit-iterations", type=int, default=60, help="stage2: renderer fit iterations on frame 0 before timing")
+    p.add_argument("--frames", type=int, default=None, help="sim: rollout length in frames (default 12); stage2: frames to extract "
+                   "(default 12); infer: frames timed after one untimed frame (default 5)")  # fmt: skip
+    p.add_argument("--fit-iterations", type=int, default=None,
+                   help="stage2: renderer fit iterations on frame 0 before timing (default 60); infer: the same (default 0: initial parameters)")  # fmt: skip
+    p.add_argument("--sim", default="mgn", help="infer: CloDS's learned simulator (default mgn; untrained weights, the preset's size)")
+    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU")
+    p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
+    p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
     p.set_defaults(func=cmd_bench)
     return parser
 
@@ -209,8 +239,34 @@ def cmd_data_export(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     store = DatasetStore.open(cfg.data.dataset_dir())
-    paths = export_sequence(store.load_trajectory(args.traj), args.out, args.format)
-    console.print(f"wrote {len(paths)} {args.format.upper()} files to {args.out}")
+    if args.format == "nerf":
+        from clods_bench.datasets.nerf import export_nerf
+
+        folders = export_nerf(store, args.out, args.meshes, args.traj, store.config.get("num_views_test"), store.config.get("interp_steps"))
+        console.print(f"wrote {len(folders)} trajectory folders (transforms.json + PNG per camera and frame) to {args.out}")
+        return 0
+    if args.meshes != "none":
+        raise ClodsError("--meshes applies to --format nerf", where="--meshes", hint="--format obj|ply writes meshes already")
+    total = 0
+    for traj in args.traj or [0]:
+        out = args.out if not args.traj or len(args.traj) == 1 else args.out / f"traj_{traj:04d}"
+        total += len(export_sequence(store.load_trajectory(traj), out, args.format))
+    console.print(f"wrote {total} {args.format.upper()} files to {args.out}")
+    return 0
+
+
+def cmd_data_import_video(args: argparse.Namespace) -> int:
+    import time
+
+    from clods_bench.datasets.video_import import import_video
+
+    t0 = time.perf_counter()
+    store = import_video(args.transforms, args.out, masks=args.masks, meshes=args.meshes, num_views_test=args.num_views_test,
+                         interp_steps=args.interp_steps, fps=args.fps, force=args.force)  # fmt: skip
+    cfg = store.config
+    console.print(f"imported {len(store)} trajectories ({cfg['num_cameras']} cameras, {cfg['num_steps']} frames, "
+                  f"{cfg['width']}x{cfg['height']}, meshes: {'yes' if store.has_meshes else 'no'}) into {store.root} "
+                  f"in {time.perf_counter() - t0:.1f} s; run on it with --set data.path={store.root}")  # fmt: skip
     return 0
 
 
@@ -261,7 +317,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.tables import write_tables
 
     if args.task == "all":
-        tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "extract") if any(True for _ in iter_records(args.runs, t))]
+        tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "dvc_multi", "extract") if any(True for _ in iter_records(args.runs, t))]
         if not tasks:
             raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     else:
@@ -277,7 +333,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.html_report import build_html_report
 
-    paths = build_html_report(args.runs, args.out, args.metric)
+    paths = build_html_report(args.runs, args.out, args.metric, bench_dir=args.bench)
     console.print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -294,7 +350,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         if args.only:
             plan.runs = [r for r in plan.runs if r.table in args.only]
             plan.tables = [t for t in plan.tables if t.id in args.only]
-        runs = build_configs(plan, args.preset, _registry(), overrides)
+        runs = build_configs(plan, args.preset, _registry(), overrides, first_seeds=args.first_seeds)
         table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
         for col in ("table / label", "task", "plugins", "seeds", "overrides"):
             table.add_column(col)
@@ -303,17 +359,25 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run_overrides(run)))
         console.print(table)
         return 0
-    manifest = reproduce(args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs)
+    manifest = reproduce(
+        args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs, args.first_seeds
+    )
     console.print(f"wrote {len(manifest['files'])} table files and manifest.json to {out} in {manifest['wall_seconds_total']:.1f} s")
     if args.check is not None:
-        return _report_comparison(args.check, out, None)
+        # With fewer seeds than the committed tables, the fresh std columns (and the seed count) say nothing.
+        skip = SEED_SPREAD_COLUMNS if args.first_seeds is not None else ()
+        return _report_comparison(args.check, out, None, skip)
     return 0
 
 
-def _report_comparison(committed: Path, fresh: Path, tolerance: Path | None) -> int:
+SEED_SPREAD_COLUMNS = ("*/std", "seeds")
+"""Columns a `--first-seeds` check leaves out: seed-to-seed std and the seed count."""
+
+
+def _report_comparison(committed: Path, fresh: Path, tolerance: Path | None, skip_columns: Sequence[str] = ()) -> int:
     from clods_bench.benchmark.compare import compare_dirs
 
-    problems = compare_dirs(committed, fresh, tolerance)
+    problems = compare_dirs(committed, fresh, tolerance, skip_columns)
     if problems:
         err_console.print(f"[bold red]{len(problems)} number(s) moved beyond tolerance or tables differ[/bold red] ({fresh} vs committed {committed}):", highlight=False)
         for line in problems:
@@ -349,10 +413,22 @@ def cmd_seed_spread(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    views = 8 if args.views is None else args.views
+    frames = 12 if args.frames is None else args.frames
+    fit_iterations = 60 if args.fit_iterations is None else args.fit_iterations
     if args.what == "data":
         from clods_bench.benchmark.bench import bench_data
 
-        bench_data(console, steps=args.steps, views=args.views)
+        bench_data(console, steps=args.steps, views=views)
+    elif args.what == "infer":
+        from clods_bench.benchmark.config import load_config
+        from clods_bench.benchmark.infer_bench import check_device
+        from clods_bench.benchmark.infer_output import print_bench_infer
+
+        check_device(args.device)  # before any work: one line when CUDA is absent
+        cfg = load_config(args.preset, None, list(args.overrides))
+        print_bench_infer(console, cfg, args.out, progress=not args.no_progress, sim=args.sim, frames=5 if args.frames is None else args.frames,
+                          views=args.views, device=args.device, fit_iterations=args.fit_iterations or 0)  # fmt: skip
     elif args.what == "store":
         from clods_bench.benchmark.config import load_config
         from clods_bench.datasets.store_bench import print_bench_store
@@ -362,17 +438,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
     elif args.what == "render":
         from clods_bench.plugins.splatting.bench import print_bench_render
 
-        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=args.views, gsplat=args.gsplat,
+        print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
     elif args.what == "stage2":
         from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
 
-        print_bench_stage2(console, preset=args.preset, frames=args.frames, fit_iterations=args.fit_iterations,
+        print_bench_stage2(console, preset=args.preset, frames=frames, fit_iterations=fit_iterations,
                            backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
         from clods_bench.benchmark.sim_bench import bench_sim
 
-        bench_sim(console, sims=args.sims, frames=args.frames)
+        bench_sim(console, sims=args.sims, frames=frames)
     return 0
 
 

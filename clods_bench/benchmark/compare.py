@@ -13,7 +13,7 @@ import fnmatch
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -142,8 +142,12 @@ def compare_tables(committed: Path, fresh: Path, spec: ToleranceSpec) -> list[st
     return problems
 
 
-def compare_dirs(committed: Path, fresh: Path, tolerance: Path | None = None) -> list[str]:
-    """Compare every CSV of `committed` with the same file in `fresh` (tolerance file default: `committed/tolerance.yaml`)."""
+def compare_dirs(committed: Path, fresh: Path, tolerance: Path | None = None, skip_columns: Sequence[str] = ()) -> list[str]:
+    """Compare every CSV of `committed` with the same file in `fresh` (tolerance file default: `committed/tolerance.yaml`).
+
+    `skip_columns`: fnmatch patterns of columns left out on top of the tolerance file's `exclude` (e.g. the std
+    columns when the fresh tables were made from fewer seeds).
+    """
     committed, fresh = Path(committed), Path(fresh)
     if not committed.is_dir():
         raise ClodsError("committed results folder not found", where=str(committed))
@@ -151,6 +155,7 @@ def compare_dirs(committed: Path, fresh: Path, tolerance: Path | None = None) ->
         raise ClodsError("fresh results folder not found", where=str(fresh))
     tol_path = Path(tolerance) if tolerance is not None else committed / TOLERANCE_FILE
     spec = load_tolerance(tol_path)
+    spec.exclude = [*spec.exclude, *skip_columns]
     csvs = sorted(committed.glob("*.csv"))
     if not csvs:
         raise ClodsError("no CSV tables to compare against", where=str(committed))

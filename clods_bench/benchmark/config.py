@@ -33,9 +33,9 @@ class DataConfig:
     """Which data a run uses. Every field but `root` decides the dataset directory."""
 
     scene: str = "flag"
-    """Scene name (a scene plugin): flag, flag-stiff, flag-storm, flag-large-dt, cylinder, ..."""
+    """Scene name (a scene plugin): flag, flag-stiff, flag-storm, flag-large-dt, cylinder, or a plugin's own cloth."""
     resolution: list[int] | str = field(default_factory=lambda: [16, 8])
-    """Mesh resolution: [nx, ny] nodes for flags ([around, along] for the cylinder) or 'flagsimple' (1579 nodes)."""
+    """Mesh resolution: [nx, ny] nodes for flags ([around, along] for the cylinder) or 'flagsimple' (1579 nodes); a mesh cloth ignores it."""
     num_train: int = 4
     """Training trajectories (paper: 100). The second half is the 'viewed' test group."""
     num_test: int = 2
@@ -64,16 +64,25 @@ class DataConfig:
     """Base seed: trajectory i is simulated with seed + i."""
     root: str = "data"
     """Directory under which datasets are stored (not part of the dataset identity)."""
+    path: str | None = None
+    """An existing dataset directory to run on (e.g. made by `data import-video`) instead of the generated one the
+    other fields name; nothing is generated, and its manifest supplies num_train, num_test, num_steps, interp_steps,
+    num_cameras, num_views_test and image_size (see `resolve_dataset_path`)."""
 
     def identity(self) -> dict[str, Any]:
-        """The fields that decide what data is generated (everything but `root`), and the generator version."""
+        """The fields that decide what data is generated (everything but `root`), and the generator version; `path`
+        only when set (an existing dataset is named by where it is; generated ones keep their old identity)."""
         d = dataclasses.asdict(self)
         d.pop("root")
+        if d["path"] is None:
+            d.pop("path")
         d["generator_version"] = DATA_GENERATOR_VERSION
         return d
 
     def dataset_dir(self) -> Path:
-        """`root/<scene>-<hash of identity>`: runs with equal data settings share one dataset."""
+        """`path` when set, else `root/<scene>-<hash of identity>`: runs with equal data settings share one dataset."""
+        if self.path:
+            return Path(self.path)
         digest = hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()[:10]
         return Path(self.root) / f"{self.scene}-{digest}"
 
@@ -181,7 +190,35 @@ def load_config(
     for item in overrides:
         key, value = parse_override(item)
         _set_dotted(merged, key, value)
-    return dataclass_from_dict(RunConfig, merged, where=" + ".join(sources) + (" + --set" if overrides else ""))
+    cfg = dataclass_from_dict(RunConfig, merged, where=" + ".join(sources) + (" + --set" if overrides else ""))
+    cfg.data = resolve_dataset_path(cfg.data)
+    return cfg
+
+
+# The data fields an existing dataset (`data.path`) fixes: what its manifest records wins over the preset.
+PATH_FIELDS = ("num_train", "num_test", "num_steps", "interp_steps", "num_cameras", "num_views_test", "image_size")
+
+
+def resolve_dataset_path(d: DataConfig) -> DataConfig:
+    """`d` with the sizes of the dataset at `d.path` (from its manifest) when `path` is set, else `d` unchanged.
+
+    The tasks read the split sizes from the data config; for a dataset that was not generated from this config
+    (an imported capture) they must come from the dataset itself. A generated dataset's manifest records every
+    DataConfig field; an imported one records these sizes (see `datasets.video_import`).
+    """
+    if not d.path:
+        return d
+    from clods_bench.datasets.store import DatasetStore
+
+    root = Path(d.path)
+    if not (root / "manifest.json").is_file():
+        raise ClodsError("no dataset here (manifest.json missing)", where=f"data.path={d.path}",
+                         hint="import one with `clods-bench data import-video`, or generate one")  # fmt: skip
+    stored = DatasetStore.open(root).config
+    missing = [k for k in PATH_FIELDS if not isinstance(stored.get(k), int) or isinstance(stored.get(k), bool)]
+    if missing:
+        raise ClodsError(f"the dataset's manifest config lacks {missing}", where=str(root / "manifest.json"))
+    return dataclasses.replace(d, path=str(root.resolve()), **{k: int(stored[k]) for k in PATH_FIELDS})
 
 
 def parse_override(item: str) -> tuple[str, Any]:

@@ -1,11 +1,12 @@
-"""Content-addressed work directories for simulator fits, so equal fits are trained once.
+"""Content-addressed work directories for simulator and video-predictor fits, so equal fits are trained once.
 
 A simulator's `fit` gets a work directory; learned simulators keep a resumable checkpoint there
 and, finding a finished one, load it instead of training. Keying that directory by everything that
 decides the trained model (simulator, its resolved config, the data, the training trajectories and
 frames, the seed, and for the CloDS pipeline the extraction it learns from) turns the checkpoint
 into a cache: the CDG row MGN, the stability task's MGN, the DVC task's simulator, CloDS' MGN*
-pre-training and a re-run all share one training. Timings stay honest: `fit_cost_seconds` counts a
+pre-training and a re-run all share one training; likewise a video predictor trained on the same videos by
+the DVC task (Table 4) and the multi-trajectory task. Timings stay honest: `fit_cost_seconds` counts a
 cached model at the training time recorded with it, not at the near-zero time of loading it.
 """
 
@@ -47,10 +48,30 @@ def sim_fit_identity(ctx: TaskContext, train_ids: list[int], frames: int, sim_co
     return fit_identity(ctx, str(cfg.sim), values, train_ids, frames, **extra)
 
 
+def predictor_fit_identity(ctx: TaskContext, train_ids: list[int], views: list[int], frames: int) -> dict[str, Any]:
+    """What decides a video predictor's fit: the predictor, its config resolved through its class (defaults
+    included), the data identity, the training trajectories, their views and frames (0..frames-1), the seed."""
+    cfg = ctx.config
+    spec = ctx.registry.get("video_predictor", cfg.predictor)
+    mapping = dict(cfg.video_config.get(cfg.predictor, {}))
+    resolved = spec.make_config(mapping, where=f"video_config.{cfg.predictor}")
+    values = dataclasses.asdict(resolved) if dataclasses.is_dataclass(resolved) else mapping
+    return {
+        "predictor": str(cfg.predictor),
+        "predictor_config": values,
+        "data": ctx.config.data.identity(),
+        "train_ids": [int(i) for i in train_ids],
+        "views": [int(v) for v in views],
+        "frames": int(frames),
+        "seed": int(ctx.seed),
+    }
+
+
 def fit_work_dir(ctx: TaskContext, identity: Mapping[str, Any]) -> Path:
-    """`<runs_dir>/fit_cache/<sim>-<digest>`, created, with the identity written beside the checkpoint."""
+    """`<runs_dir>/fit_cache/<sim or predictor>-<digest>`, created, with the identity written beside the checkpoint."""
     key = digest(dict(identity))
-    path = Path(ctx.config.runs_dir) / FIT_CACHE_DIR / f"{identity.get('sim', 'sim')}-{key}"
+    name = identity.get("sim") or identity.get("predictor") or "sim"
+    path = Path(ctx.config.runs_dir) / FIT_CACHE_DIR / f"{name}-{key}"
     path.mkdir(parents=True, exist_ok=True)
     if not (path / IDENTITY_FILE).exists():
         write_json(path / IDENTITY_FILE, dict(identity))

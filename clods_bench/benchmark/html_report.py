@@ -3,7 +3,8 @@
 It holds every table found in the run records (one per task and scene/preset, the layouts of
 `tables.py`), the error-against-time plots and rollout RMSE curves of `report.py` (whose PNG and
 CSV files are kept next to the page), and the media the runs wrote: novel-view image grids
-(`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories).
+(`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories), and, when a
+`bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from clods_bench.errors import ClodsError
 INDEX_FILE = "index.html"
 MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4", ".webm": "video/webm"}
 MAX_EMBED_BYTES = 25 * 2**20  # larger media are linked by path instead of embedded
-TASK_ORDER = ("cdg", "nvs", "dvc", "stability", "extract")
+TASK_ORDER = ("cdg", "nvs", "dvc", "dvc_multi", "stability", "extract")
+INFER_ANCHOR = "bench-infer"
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
@@ -70,19 +72,43 @@ def _seed_media(rdir: Path, seeds: int = 1) -> list[Path]:
     return found
 
 
-def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, media_seeds: int = 1) -> list[Path]:
+def infer_section(bench_dir: Path, out_dir: Path) -> tuple[str, list[Path]]:
+    """HTML of the `bench infer` results in `bench_dir` (table, stacked-bar plot redrawn into `out_dir`, caps and notes);
+    ('', []) when there is none."""
+    from clods_bench.benchmark.infer_output import PLOT_FILE, infer_table, load_infer_results, plot_infer, result_label
+
+    results = load_infer_results(bench_dir) if Path(bench_dir).is_dir() else []
+    if not results:
+        return "", []
+    png = Path(out_dir) / PLOT_FILE
+    plot_infer(results, png)
+    parts = [f"<h2 id='{INFER_ANCHOR}'>Inference time: CloDS against the traditional pipeline</h2>",
+             f"<p class='caption'>From <code>clods-bench bench infer</code> results in <code>{html.escape(str(Path(bench_dir).resolve()))}</code>: "
+             "median ms per frame; a pipeline's total is the sum of its parts' medians.</p>",
+             infer_table(results).to_html(index=False, border=0, na_rep="n/a", escape=True),
+             media_html(png, "ms per frame: simulator step and render of every view, stacked, per pipeline and preset")]  # fmt: skip
+    for r in results:
+        lines = [*(f"capped: {c}" for c in r.get("caps", [])), *r.get("notes", [])]
+        parts.append(f"<p class='caption'>{html.escape(result_label(r))} ({html.escape(str(r.get('created', '')))}): "
+                     + "; ".join(html.escape(line) for line in lines) + "</p>")  # fmt: skip
+    return "".join(parts), [png]
+
+
+def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, media_seeds: int = 1, bench_dir: Path | None = None) -> list[Path]:
     """Write `out_dir/index.html` (plus the PNG/CSV plots of `report.write_report` when CDG records exist); return the paths.
 
-    Media (grids, videos) are shown for the first `media_seeds` seeds of every run.
+    Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
+    `bench infer` results there (`infer_*.json`) get a section of their own.
     """
     from clods_bench.benchmark.reproduce import table_frames
     from clods_bench.benchmark.report import HEADLINE, write_report
 
     runs_dir, out_dir = Path(runs_dir), Path(out_dir)
-    groups = _grouped(runs_dir)
-    if not groups:
+    infer_html, infer_files = infer_section(bench_dir, out_dir) if bench_dir is not None else ("", [])
+    groups = _grouped(runs_dir) if runs_dir.is_dir() or not infer_html else {}  # bench results alone make a report too
+    if not groups and not infer_html:
         raise ClodsError("no run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
-    written: list[Path] = []
+    written: list[Path] = [*infer_files]
     if "cdg" in groups:
         written += write_report(runs_dir, out_dir, metric or HEADLINE)
 
@@ -118,6 +144,9 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                 for path in _seed_media(rdir, media_seeds):
                     rel = path.relative_to(rdir)
                     parts.append(media_html(path, f"{rec['label']} ({rec['scene']}): {rel}"))
+    if infer_html:
+        toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")
+        parts.append(infer_html)
     body = parts[0] + "<h2>Contents</h2><ul>" + "".join(toc) + "</ul>" + "".join(parts[1:])
     page = f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>clods-bench report</title><style>{STYLE}</style></head><body>{body}</body></html>\n"
     index = out_dir / INDEX_FILE

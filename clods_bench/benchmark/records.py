@@ -45,6 +45,8 @@ def record_dir(cfg: RunConfig) -> Path:
     for key in ("seeds", "progress", "runs_dir"):
         ident.pop(key)
     ident["data"].pop("root")
+    if ident["data"].get("path") is None:  # added with imported datasets: left out when unused, records keep their digest
+        ident["data"].pop("path", None)
     if cfg.predictor is None:  # fields added with the dvc task: left out when unused, so older records keep their digest
         ident.pop("predictor")
         ident.pop("video_config")

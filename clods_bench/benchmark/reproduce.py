@@ -133,9 +133,20 @@ def config_identity(cfg: RunConfig) -> str:
 
 
 def build_configs(
-    plan: ReproducePlan, preset: str, registry: Any, extra_overrides: Sequence[str] = (), config_file: Path | None = None
+    plan: ReproducePlan,
+    preset: str,
+    registry: Any,
+    extra_overrides: Sequence[str] = (),
+    config_file: Path | None = None,
+    first_seeds: int | None = None,
 ) -> list[tuple[PlanRun, RunConfig]]:
-    """Resolve every run's config and check it against the registry; raise one ClodsError listing every problem."""
+    """Resolve every run's config and check it against the registry; raise one ClodsError listing every problem.
+
+    `first_seeds` keeps only the first that many seeds of every run: a quicker regression check (CI) whose fresh
+    tables have no seed-to-seed std; a full reproduce needs at least 2 seeds.
+    """
+    if first_seeds is not None and first_seeds < 1:
+        raise ClodsError(f"first_seeds must be >= 1, got {first_seeds}", where="--first-seeds")
     from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs
 
     problems: list[str] = []
@@ -169,7 +180,9 @@ def build_configs(
         except ClodsError as exc:
             problems.append(f"{where}: {exc.message}")
             continue
-        if len(cfg.seeds) < 2:
+        if first_seeds is not None:
+            cfg.seeds = list(cfg.seeds[:first_seeds])
+        elif len(cfg.seeds) < 2:
             problems.append(f"{where}: {len(cfg.seeds)} seed(s); reproduce needs at least 2 (seed-to-seed std)")
         out.append((run, cfg))
     empty = [t.id for t in plan.tables if not any(r.table == t.id for r in plan.runs)]
@@ -216,7 +229,7 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
     if task in ("cdg", "stability"):
         display, numeric = (tables.cdg_frame if task == "cdg" else tables.stability_frame)(records)
         return display, numeric, ""
-    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame}
+    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame, "dvc_multi": tables.dvc_multi_frame}
     if task in layouts:
         display, numeric, notes = layouts[task](records)
         return display, numeric, "; ".join(notes)
@@ -263,8 +276,12 @@ def reproduce(
     only: Sequence[str] = (),
     ray_address: str | None = None,
     jobs: int = 1,
+    first_seeds: int | None = None,
 ) -> dict[str, Any]:
-    """Run every run of the plan (resuming finished seeds), write every table and `manifest.json`; return the manifest."""
+    """Run every run of the plan (resuming finished seeds), write every table and `manifest.json`; return the manifest.
+
+    `first_seeds`: run only the first that many seeds of every run (see `build_configs`).
+    """
     from clods_bench.benchmark.executors import make_executor, run_configs
 
     t_start = time.perf_counter()
@@ -276,7 +293,7 @@ def reproduce(
             raise ClodsError(f"unknown table id(s): {', '.join(unknown)}", where="--only", hint=f"one of {', '.join(t.id for t in plan.tables)}")
         plan.tables = [t for t in plan.tables if t.id in only]
         plan.runs = [r for r in plan.runs if r.table in only]
-    runs = build_configs(plan, preset, registry, overrides)
+    runs = build_configs(plan, preset, registry, overrides, first_seeds=first_seeds)
     executor = make_executor(executor_name, ray_address, jobs)
     # Rows whose configs differ only in their label (e.g. the default SMGS in several tables) run once.
     canonical: dict[str, tuple[str, RunConfig]] = {}
@@ -321,6 +338,7 @@ def reproduce(
         "plan": _shown(plan_file),
         "plan_sha256": plan_digest(plan_file),
         "overrides": list(overrides),
+        "first_seeds": first_seeds,
         "executor": executor_name,
         "jobs": int(jobs),
         "commit": git_commit(),

@@ -85,19 +85,24 @@ def _lpips_reasons(rec: dict[str, Any]) -> list[str]:
 
 
 def image_metric_frame(
-    records: list[dict[str, Any]], columns: tuple[tuple[str, str, float, int], ...], time_key: str, time_name: str
+    records: list[dict[str, Any]],
+    columns: tuple[tuple[str, str, float, int], ...],
+    time_key: str,
+    time_name: str,
+    groups: tuple[tuple[str, str], ...] = (("", "Quality"),),
 ) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     """(display frame, numeric frame with the scaled numbers shown, footnotes) of image-metric records (NVS, DVC).
 
-    `columns`: (metric key, column name, scale, digits). A record without LPIPS gets 'unavailable [k]' in its
+    `columns`: (metric key, column name, scale, digits), repeated under each of `groups`: (metric key prefix,
+    column group), e.g. ('extrap/', 'Extrapolation'). A record without LPIPS gets 'unavailable [k]' in its
     LPIPS cell, footnote k saying why.
     """
     display_rows, numeric_rows, index, notes = [], [], [], []
     for rec in records:
         row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
-        for key, name, scale, digits in columns:
-            col = key if scale == 1.0 else f"{key}_x{scale:g}"  # CSV holds the scaled numbers shown
-            m = rec["metrics"].get(key)
+        for (prefix, group), (key, name, scale, digits) in ((g, c) for g in groups for c in columns):
+            col = prefix + (key if scale == 1.0 else f"{key}_x{scale:g}")  # CSV holds the scaled numbers shown
+            m = rec["metrics"].get(prefix + key)
             if m is None or m["mean"] is None:
                 reasons = _lpips_reasons(rec) if key == "lpips" else []
                 marks = []
@@ -105,10 +110,10 @@ def image_metric_frame(
                     if reason not in notes:
                         notes.append(reason)
                     marks.append(f"[{notes.index(reason) + 1}]")
-                row[("Quality", name)] = "unavailable " + "".join(marks)
+                row[(group, name)] = "unavailable " + "".join(marks)
                 num[f"{col}/mean"] = num[f"{col}/std"] = float("nan")
             else:
-                row[("Quality", name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
+                row[(group, name)] = fmt_cell(scale * m["mean"], scale * (m["std"] or 0.0), digits=digits)
                 num[f"{col}/mean"], num[f"{col}/std"] = scale * m["mean"], scale * (m["std"] or 0.0)
         t = rec["timings"]
         per_image = t.get(time_key, {}).get("mean", float("nan"))
@@ -160,6 +165,27 @@ def dvc_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
 def dvc_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """Caption of the DVC table: what is scored, over how many seeds, and the footnotes."""
     return _image_caption("DVC forward / cloth video prediction", "extrapolation frames of the scored views", "predict", scene, preset, records, notes)
+
+
+DVC_MULTI_COLUMNS = (  # the paper's appendix table on multiple trajectories prints SSIM, LPIPS and RMSE unscaled
+    ("psnr", "PSNR (dB) ↑", 1.0, 4),
+    ("ssim", "SSIM ↑", 1.0, 4),
+    ("lpips", "LPIPS ↓", 1.0, 5),
+    ("rmse", "RMSE ↓", 1.0, 5),
+)
+DVC_MULTI_GROUPS = (("extrap/", "Extrapolation"), ("gen/", "Generalization"))
+
+
+def dvc_multi_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """(display frame in the layout of the paper's multi-trajectory table: Extrapolation and Generalization, each
+    PSNR, SSIM, LPIPS, RMSE; numeric frame for CSV; footnotes)."""
+    return image_metric_frame(records, DVC_MULTI_COLUMNS, "predict_ms_per_frame", "predict ms/frame", DVC_MULTI_GROUPS)
+
+
+def dvc_multi_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
+    """Caption of the multi-trajectory table: which frames each group scores, seeds, footnotes."""
+    scored = "Extrapolation = the frames after the interpolation phase of the training trajectories, Generalization = the first frames of unseen trajectories"
+    return _image_caption("Video prediction trained on multiple trajectories", scored, "predict", scene, preset, records, notes)
 
 
 EXTRACT_COLUMNS = (  # (metric key, column): E-GT in metres (RMSE of extracted vs true mesh, frames after the first)
@@ -300,8 +326,8 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
     """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task`; return the paths."""
     if task == "stability":
         return write_stability_tables(runs_dir, out_dir)
-    if task not in ("cdg", "nvs", "dvc", "extract"):
-        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs, dvc, extract, stability")
+    if task not in ("cdg", "nvs", "dvc", "dvc_multi", "extract"):
+        raise ClodsError(f"no table layout for task '{task}' yet", where="tables --task", hint="one of: cdg, nvs, dvc, dvc_multi, extract, stability")
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for _, rec in iter_records(runs_dir, task):
         groups.setdefault((rec["scene"], rec["preset"]), []).append(rec)
@@ -317,6 +343,9 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
         elif task == "dvc":
             display, numeric, notes = dvc_frame(recs)
             caption = dvc_caption(scene, preset, recs, notes)
+        elif task == "dvc_multi":
+            display, numeric, notes = dvc_multi_frame(recs)
+            caption = dvc_multi_caption(scene, preset, recs, notes)
         elif task == "extract":
             display, numeric, notes = extract_frame(recs)
             seeds = sorted({len(r["seeds"]) for r in recs})

@@ -88,12 +88,31 @@ def render_trajectory(
 
 
 def scene_fingerprint(scene: SceneSpec) -> str:
-    """Hash of everything a scene defines (physics, ranges, warm-up): a dataset made from an edited scene
+    """Hash of everything a scene defines (cloth, physics, ranges, warm-up): a dataset made from an edited scene
     definition is reported as made with a different config instead of being reused."""
     fields: object = repr(scene)
     if dataclasses.is_dataclass(scene):
-        fields = {k: v for k, v in dataclasses.asdict(scene).items() if k != "description"}  # prose changes no data
+        fields = scene_identity(scene)
     return hashlib.sha256(json.dumps(fields, sort_keys=True, default=repr).encode()).hexdigest()[:16]
+
+
+def scene_identity(scene: SceneSpec) -> dict[str, Any]:
+    """The scene's fields (not its prose) with its cloth's identity merged in at the top level.
+
+    Flat, so the built-in flag and cylinder (whose cloths contribute kind, size and default_resolution)
+    keep the fingerprints they had when those were scene fields: their datasets stay valid.
+    """
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(scene):
+        if f.name in ("description", "cloth"):  # prose changes no data; the cloth is merged below
+            continue
+        value = getattr(scene, f.name)
+        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+    cloth = scene.cloth.identity()
+    clash = sorted(set(cloth) & set(out))
+    if clash:
+        raise ClodsError(f"cloth fields {clash} have the names of scene fields", where=f"scene {scene.name}", hint="rename them")
+    return {**out, **cloth}
 
 
 @dataclass(frozen=True)
@@ -146,6 +165,9 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
     `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.executors`) generates the
     missing trajectories in parallel; None generates them here, one after another.
     """
+    if d.path:
+        raise ClodsError("data.path names an existing dataset: there is nothing to generate", where=f"data.path={d.path}",
+                         hint="leave data.path unset to generate the dataset the other data.* fields describe")  # fmt: skip
     for name in ("num_train", "num_test"):
         if getattr(d, name) < (2 if name == "num_train" else 1):
             raise ClodsError(f"{name} is {getattr(d, name)}, too small", where=f"data.{name}")
@@ -183,5 +205,17 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
 
 def ensure_dataset(cfg: "RunConfig", registry: "Registry", progress: bool = True, executor: Any = None) -> Any:
     """Open the run's dataset, generating whatever part of it is missing (in parallel through `executor`, if given)."""
+    if cfg.data.path:
+        return open_existing(cfg.data.path, cfg.data.num_train + cfg.data.num_test)
     scene = registry.get("scene", cfg.data.scene)
     return generate(cfg.data, scene, progress=progress, executor=executor)
+
+
+def open_existing(path: str | Path, num_trajectories: int) -> DatasetStore:
+    """The dataset at `path` (`data.path`), checked to hold trajectories 0..num_trajectories-1 complete; never generated."""
+    store = DatasetStore.open(Path(path))
+    missing = sorted(set(range(num_trajectories)) - store.completed_indices())
+    if missing:
+        raise ClodsError(f"trajectories {missing} are missing or incomplete", where=str(Path(path) / "manifest.json"),
+                         hint="re-import the dataset")  # fmt: skip
+    return store

@@ -66,6 +66,24 @@ def _scale_to_edges(uv: np.ndarray, rest: np.ndarray, cells: np.ndarray) -> np.n
     return uv * scale * (l3[keep].mean() / l2.mean())
 
 
+def read_triangle_mesh(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(rest (V,3) float64, cells (F,3) int32, uv (V,2) float64 or None) of an OBJ/PLY, vertices in file order."""
+    p = Path(path)
+    tm = _load_trimesh(p)
+    rest = np.asarray(tm.vertices, dtype=np.float64)
+    cells = np.asarray(tm.faces, dtype=np.int32)
+    uv_raw = getattr(getattr(tm, "visual", None), "uv", None)
+    uv = np.asarray(uv_raw, dtype=np.float64) if uv_raw is not None and np.shape(uv_raw) == (rest.shape[0], 2) else None
+    return rest, cells, uv
+
+
+def flatten_rest(rest: np.ndarray, cells: np.ndarray, uv: np.ndarray | None) -> np.ndarray:
+    """(V,2) mesh-space coordinates of a rest shape: `uv` scaled to the 3D edge lengths, or the best-fit plane."""
+    if uv is not None:
+        return _scale_to_edges(np.asarray(uv, dtype=np.float64), rest, cells)
+    return _pca_plane(rest)
+
+
 def mesh_from_file(
     path: str | os.PathLike[str],
     handle_fn: HandleFn | None = None,
@@ -80,17 +98,9 @@ def mesh_from_file(
     nodes within `top_tol` metres of the highest z are handles; else every node is NORMAL.
     """
     p = Path(path)
-    tm = _load_trimesh(p)
-    rest = np.asarray(tm.vertices, dtype=np.float64)
-    cells = np.asarray(tm.faces, dtype=np.int32)
-    uv_raw = getattr(getattr(tm, "visual", None), "uv", None)
-    uv = None
+    rest, cells, uv = read_triangle_mesh(p)
     try:
-        if uv_raw is not None and np.shape(uv_raw) == (rest.shape[0], 2):
-            uv = np.asarray(uv_raw, dtype=np.float64)
-            mesh_pos = _scale_to_edges(uv, rest, cells)
-        else:
-            mesh_pos = _pca_plane(rest)
+        mesh_pos = flatten_rest(rest, cells, uv)
     except ClodsError as exc:
         raise ClodsError(exc.what, where=str(p)) from exc
     node_type = np.full(rest.shape[0], NORMAL, dtype=np.int32)

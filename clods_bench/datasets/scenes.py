@@ -1,6 +1,7 @@
 """Named cloth scenes (flag, stiff, storm, large time step, cylinder) and their simulation.
 
-A scene fixes the physics (the environment) and the ranges its trajectories are drawn from;
+A scene is its cloth (a `Cloth` from `cloths`: the built-in flag and cylinder, or any triangle
+mesh a scene plugin brings), the physics (the environment) and the ranges its trajectories are drawn from;
 `simulate_scene` draws one trajectory's initial pose, initial velocity and turbulence from a seed,
 so a dataset is reproducible trajectory by trajectory. As in FLAGSIMPLE ("the same shaped cloth in
 the same environment", a unique initial state per trajectory), the flag scenes blow one mean wind
@@ -17,26 +18,30 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
-from clods_bench.datasets.meshes import make_cylinder_mesh, make_flag_mesh, make_flagsimple_mesh
+from clods_bench.datasets.cloths import (
+    Cloth,
+    CylinderCloth,
+    FlagCloth,
+    Resolution,
+    validate_cloth_mesh,
+    validate_handle_motion,
+)
 from clods_bench.datasets.types import NORMAL, ClothMesh, Trajectory
 from clods_bench.errors import ClodsError, unknown_name
-
-Resolution = tuple[int, int] | str
-_CYLINDER_FLAGSIMPLE = (48, 33)  # 1584 nodes, close to FLAGSIMPLE's 1579
 
 
 @dataclass(frozen=True)
 class SceneSpec:
-    """A named scene: physics, time step, what it contains, and per-trajectory random ranges."""
+    """A named scene: its cloth (a `Cloth` plugin), physics, time step, what it contains, and per-trajectory random ranges."""
 
     name: str
     description: str  # one line
-    kind: Literal["flag", "cylinder"]
+    cloth: Cloth
+    """The cloth: mesh, rest coordinates, handles and their motion (`clods_bench.datasets.cloths`)."""
     params: SolverParams
     dt: float = 0.02
     substeps: int = 1
@@ -44,32 +49,45 @@ class SceneSpec:
     has_wind: bool = True
     has_lighting: bool = False
     has_handles: bool = True
-    size: tuple[float, float] = (2.0, 1.0)  # flag (length, height) or cylinder (radius, height), metres
-    default_resolution: Resolution = "flagsimple"  # flag (nx, ny) | "flagsimple"; cylinder (n_around, n_along)
-    rotation_range: tuple[float, float] = (-0.6, 0.6)  # initial rotation about the pole/tube axis, rad
+    rotation_range: tuple[float, float] = (-0.6, 0.6)  # initial rotation about the vertical axis through the handles, rad
     init_speed_range: tuple[float, float] = (0.0, 1.0)  # initial velocity of the free end, m/s
     perturb_amplitude: float = 0.05  # largest smooth out-of-plane initial displacement, m
     wind_speed_range: tuple[float, float] = (8.0, 8.0)  # mean wind speed, m/s (one value: the same environment)
     wind_direction_spread: float = 0.0  # azimuth of the wind is +x +- this, rad
     warmup_time: float = 1.0  # seconds simulated before frame 0 is recorded (frame 0 = the cloth already in motion)
 
-    def build_mesh(self, resolution: Resolution | None = None) -> ClothMesh:
-        """The scene's cloth mesh: flag (nx, ny) | "flagsimple"; cylinder (n_around, n_along) | "flagsimple".
+    def __post_init__(self) -> None:
+        if not isinstance(self.cloth, Cloth):
+            raise ClodsError(
+                f"cloth is a {type(self.cloth).__name__}, expected a clods_bench.datasets.cloths.Cloth", where=f"scene {self.name}"
+            )
 
-        For the cylinder "flagsimple" means a tube of about the FLAGSIMPLE size (48 x 33 = 1584 nodes).
+    @property
+    def kind(self) -> str:
+        """The cloth's kind (flag, cylinder, mesh, or the plugin's own), written into each trajectory's meta."""
+        return self.cloth.kind
+
+    @property
+    def default_resolution(self) -> Resolution | None:
+        """The cloth's resolution when the config names none."""
+        return self.cloth.default_resolution
+
+    def build_mesh(self, resolution: Resolution | None = None) -> ClothMesh:
+        """The scene's validated cloth mesh at `resolution` (None: the cloth's default); one ClodsError naming the scene if bad.
+
+        Flag: (nx, ny) | "flagsimple"; cylinder: (n_around, n_along) | "flagsimple" (a tube of about the
+        FLAGSIMPLE size, 48 x 33 = 1584 nodes); a `MeshCloth` has one resolution.
         """
-        res = self.default_resolution if resolution is None else resolution
-        if self.kind == "flag":
-            if isinstance(res, str):
-                if res != "flagsimple":
-                    raise ClodsError(f"unknown resolution '{res}'; use 'flagsimple' or (nx, ny)", where=f"scene {self.name}")
-                return make_flagsimple_mesh(*self.size)
-            return make_flag_mesh(int(res[0]), int(res[1]), *self.size)
-        if isinstance(res, str):
-            if res != "flagsimple":
-                raise ClodsError(f"unknown resolution '{res}'; use 'flagsimple' or (n_around, n_along)", where=f"scene {self.name}")
-            res = _CYLINDER_FLAGSIMPLE
-        return make_cylinder_mesh(int(res[0]), int(res[1]), *self.size)
+        where = f"scene {self.name}"
+        try:
+            mesh = self.cloth.build(resolution)
+        except ClodsError as exc:
+            raise ClodsError(exc.what if exc.where is None else f"{exc.where}: {exc.what}", where=where, hint=exc.hint) from exc
+        if not isinstance(mesh, ClothMesh):
+            raise ClodsError(f"{type(self.cloth).__name__}.build returned a {type(mesh).__name__}, expected a ClothMesh", where=where)
+        validate_cloth_mesh(mesh, where, self.has_handles)
+        validate_handle_motion(self.cloth, np.asarray(mesh.rest_pos[mesh.node_type != NORMAL], np.float64), self.dt, where)
+        return mesh
 
 
 def _rotation_z(angle: float) -> np.ndarray:
@@ -136,7 +154,10 @@ def simulate_scene(scene: SceneSpec, mesh: ClothMesh, num_steps: int, seed: int,
     x0, v0, meta_init = initial_state(scene, mesh, rng)
     params, meta_wind = draw_wind(scene, rng)
     solver_seed = int(rng.integers(0, 2**31 - 1))
-    solver = ClothSolver(mesh, params, scene.dt, seed=solver_seed)
+    start_handles = x0[mesh.node_type != NORMAL].copy()
+    moving = validate_handle_motion(scene.cloth, start_handles, scene.dt, f"scene {scene.name}")
+    handle_fn = (lambda t: scene.cloth.handle_positions(t, start_handles)) if moving else None
+    solver = ClothSolver(mesh, params, scene.dt, seed=solver_seed, handle_fn=handle_fn)
 
     def report(frame: int, total: int) -> None:
         if frame == total - 1 or frame % max(total // 10, 1) == 0:
@@ -172,27 +193,25 @@ _FLAG = SolverParams(
 )
 
 BUILTIN_SCENES: tuple[SceneSpec, ...] = (
-    SceneSpec("flag", "FLAGSIMPLE-like flag pinned on its pole, flying in one 8 m/s wind with light turbulence (the same for every trajectory)", "flag", _FLAG),
+    SceneSpec("flag", "FLAGSIMPLE-like flag pinned on its pole, flying in one 8 m/s wind with light turbulence (the same for every trajectory)", FlagCloth(), _FLAG),
     SceneSpec(
-        "flag-stiff", "the flag with membrane and bending 50x stiffer (stiff implicit system)", "flag", _FLAG.scaled(50.0, 50.0)
+        "flag-stiff", "the flag with membrane and bending 50x stiffer (stiff implicit system)", FlagCloth(), _FLAG.scaled(50.0, 50.0)
     ),
     SceneSpec(
         "flag-storm",
         "the flag in extreme gusty wind: large deformation and self-occlusion",
-        "flag",
+        FlagCloth(),
         dataclasses.replace(_FLAG, turbulence_amplitude=5.0, turbulence_time_scale=0.5),
         wind_speed_range=(14.0, 20.0),
         wind_direction_spread=0.8,
         init_speed_range=(0.0, 3.0),
     ),
-    SceneSpec("flag-large-dt", "the flag integrated with a 0.05 s time step", "flag", _FLAG, dt=0.05),
+    SceneSpec("flag-large-dt", "the flag integrated with a 0.05 s time step", FlagCloth(), _FLAG, dt=0.05),
     SceneSpec(
         "cylinder",
         "an open tube of cloth hanging from its pinned top ring, swaying in wind (shape generalisation)",
-        "cylinder",
+        CylinderCloth(size=(0.3, 1.0), default_resolution=(32, 16)),
         dataclasses.replace(_FLAG, turbulence_amplitude=0.5),
-        size=(0.3, 1.0),
-        default_resolution=(32, 16),
         perturb_amplitude=0.005,
         wind_speed_range=(0.5, 2.0),
         wind_direction_spread=math.pi,

@@ -7,6 +7,8 @@ Layout of `root` (schema version 2):
 - `frames_0000.zarr/`: (T, N, H, W, 3) uint8 multi-view frames, chunked per camera and a few frames,
   compressed and checksummed per chunk (see `frame_store`), read lazily with `frames(index)`;
 - `texture.png` (optional).
+A dataset imported from video may have no meshes (manifest `"meshes": false`): its entries then hold frames,
+`dt` and `meta` only, and `load_trajectory` refuses with one line saying so (`require_meshes`).
 Files are written atomically before their manifest entry, so an interrupted generation leaves
 no entry for a half-written trajectory and a later run resumes from `completed_indices()`. The
 manifest is re-read and rewritten under a file lock, so parallel workers can each add their own
@@ -51,8 +53,11 @@ class DatasetStore:
     # ----------------------------------------------------------- create / open
 
     @classmethod
-    def create(cls, root: Path, scene: str, config: dict[str, Any], cameras: list[Camera], force: bool = False) -> "DatasetStore":
-        """A new store at `root`, or the existing one (to resume) if it was made with the same config."""
+    def create(cls, root: Path, scene: str, config: dict[str, Any], cameras: list[Camera], force: bool = False,
+               meshes: bool = True) -> "DatasetStore":  # fmt: skip
+        """A new store at `root`, or the existing one (to resume) if it was made with the same config.
+
+        `meshes=False`: a dataset of videos alone (trajectories written with `write_video_trajectory`)."""
         root = Path(root)
         manifest = {
             "schema_version": SCHEMA_VERSION,
@@ -62,6 +67,8 @@ class DatasetStore:
             "texture": None,
             "trajectories": [],
         }
+        if not meshes:  # only written when false: generated manifests stay as they were
+            manifest["meshes"] = False
         if (root / MANIFEST).exists():
             try:
                 store = cls.open(root)
@@ -120,6 +127,25 @@ class DatasetStore:
         entry = {"index": index, "split": split, "seed": int(seed), "files": files, "shapes": shapes, "complete": True}
         self._update_manifest(lambda: self._entries.__setitem__(index, entry))
 
+    def write_video_trajectory(self, index: int, split: str, seed: int, frames: np.ndarray | Iterable[np.ndarray],
+                               num_steps: int, dt: float, meta: dict[str, Any] | None = None) -> None:  # fmt: skip
+        """Write one trajectory of a dataset without meshes: its `num_steps` frames (as in `write_trajectory`), `dt`, `meta`."""
+        if self.has_meshes:
+            raise ClodsError("this dataset stores meshes: write trajectories with write_trajectory", where=str(self.root / MANIFEST))
+        if split not in SPLITS:
+            raise ClodsError(f"unknown split '{split}', expected one of {SPLITS}", where=f"trajectory {index}")
+        if index < 0 or num_steps < 2 or not (np.isfinite(dt) and dt > 0):
+            raise ClodsError(f"need index >= 0, num_steps >= 2 and dt > 0, got {index}, {num_steps}, {dt}", where=f"trajectory {index}")
+        if isinstance(frames, np.ndarray):
+            self._check_frames(index, frames, num_steps)
+        if index in self._entries:
+            self._update_manifest(lambda: self._entries.pop(index, None))
+        shape = self._frames_shape(num_steps)
+        files = {"frames": write_frames(self.root / f"frames_{index:04d}.zarr", frames, shape)}
+        entry = {"index": index, "split": split, "seed": int(seed), "files": files, "shapes": {"frames": list(shape)},
+                 "dt": float(dt), "meta": _normalise(meta or {}), "complete": True}  # fmt: skip
+        self._update_manifest(lambda: self._entries.__setitem__(index, entry))
+
     def write_texture(self, data: bytes, name: str = "texture.png") -> None:
         """Store the texture image file (already encoded bytes) and record it in the manifest."""
         with atomic_path(self.root / name) as tmp:
@@ -132,6 +158,8 @@ class DatasetStore:
     def load_trajectory(self, index: int, verify: bool = False) -> Trajectory:
         """The mesh trajectory `index`, checked against the manifest and validated (ClodsError naming the file)."""
         entry = self._entry(index)
+        if "traj" not in entry["files"]:
+            self.require_meshes(f"reading trajectory {index}'s mesh")
         path = self._checked_file(entry["files"]["traj"], verify)
         try:
             with np.load(path, allow_pickle=False) as npz:
@@ -180,7 +208,8 @@ class DatasetStore:
         texture = self._manifest.get("texture")
         checks = [lambda: self._checked_file(texture, True)] if texture else []
         for index, entry in sorted(self._entries.items()):
-            checks.append(lambda i=index: self.load_trajectory(i, verify=True))
+            if "traj" in entry["files"]:
+                checks.append(lambda i=index: self.load_trajectory(i, verify=True))
             if "frames" in entry["files"]:
                 checks.append(lambda i=index: self._verify_frames(i))
         for check in checks:
@@ -196,6 +225,24 @@ class DatasetStore:
     def cameras(self) -> list[Camera]:
         """The camera rig the frames were rendered with (index n = frames[:, n])."""
         return [Camera.from_dict(d) for d in self._manifest["cameras"]]
+
+    @property
+    def has_meshes(self) -> bool:
+        """False for a dataset of videos alone (imported without meshes)."""
+        return self._manifest.get("meshes", True) is not False
+
+    def require_meshes(self, what: str) -> None:
+        """Raise the one-line ClodsError of a dataset without meshes when `what` (a task, a renderer) needs them."""
+        if not self.has_meshes:
+            raise ClodsError(f"the dataset has no meshes (imported from video), and {what} needs ground-truth meshes",
+                             where=str(self.root),
+                             hint="without meshes run nvs with a per-frame renderer (gs3d) or dvc with a video predictor "
+                                  "(copylast, simvp, ...); or re-import with --meshes DIR")  # fmt: skip
+
+    def dt(self, index: int) -> float:
+        """Seconds between frames of trajectory `index`."""
+        entry = self._entry(index)
+        return float(entry["dt"]) if "dt" in entry else self.load_trajectory(index).dt
 
     @property
     def scene(self) -> str:
@@ -364,7 +411,7 @@ def _check_manifest(m: Any, where: str) -> None:
     for n, e in enumerate(m["trajectories"]):
         if not isinstance(e, dict) or not all(k in e for k in ("index", "split", "files", "shapes", "complete")):
             raise ClodsError("entry lacks index/split/files/shapes/complete", where=f"{where}.trajectories[{n}]")
-        if "traj" not in e["files"] or not all(k in f for f in e["files"].values() for k in ("name", "sha256", "bytes")):
+        if ("traj" not in e["files"] and m.get("meshes", True) is not False) or not all(k in f for f in e["files"].values() for k in ("name", "sha256", "bytes")):
             raise ClodsError("file records need name, sha256 and bytes", where=f"{where}.trajectories[{n}].files")
 
 

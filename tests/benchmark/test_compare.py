@@ -135,6 +135,20 @@ def test_a_skip_rule_leaves_its_cells_out(tmp_path: Path) -> None:
     assert compare_dirs(committed, fresh) == ["t.csv: B: viewed/interp/d_avg/std: nan -> 1 (moved nan, allowed 0)"]
 
 
+def test_skip_columns_leave_std_and_seed_count_out(tmp_path: Path) -> None:
+    committed = _tables(tmp_path / "c")
+    fresh = _tables(tmp_path / "f")
+    frame = pd.read_csv(fresh / "t.csv")
+    frame["seeds"] = 1
+    frame.loc[0, "viewed/interp/d_avg/std"] = float("nan")  # one seed: no std
+    frame.to_csv(fresh / "t.csv", index=False)
+    assert len(compare_dirs(committed, fresh)) == 3  # two seed counts and the std
+    assert compare_dirs(committed, fresh, skip_columns=("*/std", "seeds")) == []
+    frame.loc[0, "viewed/interp/d_avg/mean"] = 0.2
+    frame.to_csv(fresh / "t.csv", index=False)
+    assert compare_dirs(committed, fresh, skip_columns=("*/std", "seeds")) == ["t.csv: A: viewed/interp/d_avg/mean: 0.1 -> 0.2 (moved 0.1, allowed 0.001)"]
+
+
 def test_failure_kind_drops_the_measured_values() -> None:
     from clods_bench.benchmark.tables import failure_kind
 

@@ -126,6 +126,34 @@ def test_one_seed_is_refused(tmp_path: Path, tiny_root: Path) -> None:
         build_configs(load_plan(_plan(tmp_path)), "ci", default_registry(), [*_overrides(tiny_root, tmp_path), "seeds=[3]"])
 
 
+def test_first_seeds_keeps_the_first_seeds_and_lifts_the_two_seed_rule(tmp_path: Path, tiny_root: Path) -> None:
+    plan = load_plan(_plan(tmp_path))
+    runs = build_configs(plan, "ci", default_registry(), [*_overrides(tiny_root, tmp_path), "seeds=[3, 5, 7]"], first_seeds=2)
+    assert runs and all(cfg.seeds == [3, 5] for _, cfg in runs)
+    runs = build_configs(plan, "ci", default_registry(), [*_overrides(tiny_root, tmp_path), "seeds=[3]"], first_seeds=1)
+    assert all(cfg.seeds == [3] for _, cfg in runs)
+    with pytest.raises(ClodsError, match="first_seeds must be >= 1"):
+        build_configs(plan, "ci", default_registry(), _overrides(tiny_root, tmp_path), first_seeds=0)
+
+
+def test_cli_check_on_the_first_seed_compares_means_only(tmp_path: Path, tiny_root: Path) -> None:
+    plan = _plan(tmp_path)
+    sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]
+    committed = tmp_path / "committed"
+    assert main(["reproduce", "--plan", str(plan), "--out", str(committed), *sets]) == 0
+    (committed / "tolerance.yaml").write_text("default: {rel: 1.0e-6, abs: 1.0e-9}\nexclude: ['*_ms_per_*', '*seconds*']\n")
+    table = pd.read_csv(committed / "t_cdg.csv")
+    table.loc[0, "viewed/interp/d_avg/std"] += 0.5  # a std the single-seed run cannot reproduce: not compared
+    table.to_csv(committed / "t_cdg.csv", index=False)
+    fresh = tmp_path / "fresh"
+    assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--first-seeds", "1", "--check", str(committed), *sets]) == 0
+    assert set(pd.read_csv(fresh / "t_cdg.csv")["seeds"]) == {1}
+    assert json.loads((fresh / "manifest.json").read_text())["first_seeds"] == 1
+    table.loc[0, "viewed/interp/d_avg/mean"] *= 1.01  # a mean still is
+    table.to_csv(committed / "t_cdg.csv", index=False)
+    assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--first-seeds", "1", "--check", str(committed), *sets]) == 1
+
+
 def test_cli_reproduce_check_passes_then_fails_when_a_committed_number_differs(tmp_path: Path, tiny_root: Path) -> None:
     plan = _plan(tmp_path)
     sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]

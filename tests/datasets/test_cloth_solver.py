@@ -205,3 +205,60 @@ def test_bad_parameters_are_named():
         SolverParams(wind_velocity=(1.0, 2.0)).validate()  # type: ignore[arg-type]
     with pytest.raises(ClodsError, match="dt"):
         ClothSolver(make_flag_mesh(3, 3), SolverParams(), 0.0)
+
+
+def spherical_cap() -> ClothMesh:
+    """An irregular, curved cloth: the part of a 0.5 m icosphere above z = -0.15 (no grid, curved rest shape)."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    faces = sphere.faces[(sphere.vertices[sphere.faces][:, :, 2] > -0.15).all(axis=1)]
+    used, cells = np.unique(faces, return_inverse=True)
+    rest = sphere.vertices[used] + [0.0, 0.0, 2.0]
+    node_type = np.full(used.size, NORMAL, np.int32)
+    mesh_pos = rest[:, :2].astype(np.float32)  # the solver takes its rest metric from rest_pos
+    return ClothMesh(cells.reshape(-1, 3).astype(np.int32), mesh_pos, node_type, rest)
+
+
+def test_arbitrary_mesh_with_every_node_pinned_stays_exactly_still():
+    m = spherical_cap()
+    m = dataclasses.replace(m, node_type=np.full(m.num_nodes, 3, np.int32))
+    windy = SolverParams(wind_velocity=(6.0, 2.0, 0.0), turbulence_amplitude=2.0)
+    out = ClothSolver(m, windy, 0.02, seed=3).simulate(m.rest_pos, np.zeros_like(m.rest_pos), 20)
+    np.testing.assert_array_equal(out, np.broadcast_to(m.rest_pos.astype(np.float32), out.shape))
+
+
+def test_free_arbitrary_mesh_falls_with_g():
+    """No handles, no air: internal (membrane + bending) forces sum to zero, so the mass-weighted centre follows
+    backward Euler's free fall exactly, z0 + v0 t - g t^2/2 - g t dt/2, while the shape changes (the flat-rest
+    bending model flattens the cap), i.e. the forces are there but cancel."""
+    m = spherical_cap()
+    assert m.num_nodes > 100 and cloth_energy.find_hinges(m.cells).shape[0] > 200
+    dt, n = 0.02, 26
+    solver = ClothSolver(m, dataclasses.replace(STILL, cg_tol=1e-12, bending_stiffness=2e-2), dt)
+    v0 = np.tile([0.1, 0.0, 0.5], (m.num_nodes, 1))
+    out = solver.simulate(m.rest_pos, v0, n).astype(np.float64)
+    w = solver.mass / solver.mass.sum()
+    com = np.einsum("v,tvd->td", w, out)
+    t = dt * np.arange(n)[:, None]
+    g = np.array(STILL.gravity)
+    expected = w @ m.rest_pos + v0[0] * t + 0.5 * g * t**2 + 0.5 * g * t * dt
+    np.testing.assert_allclose(com, expected, atol=2e-6)
+    shape_change = np.abs((out[-1] - com[-1]) - (m.rest_pos - com[0])).max()
+    assert shape_change > 1e-3
+
+
+def test_solver_does_not_depend_on_node_or_face_order():
+    """The flag with its nodes and faces shuffled gives the same motion, node for node (up to CG tolerance)."""
+    m = curtain(6, 5)
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(m.num_nodes)  # new node i is old node perm[i]
+    inv = np.argsort(perm)
+    cells = inv[m.cells][rng.permutation(m.num_faces)]
+    cells = np.roll(cells, 1, axis=1)  # rotate each triangle's corners (orientation kept)
+    p = ClothMesh(cells.astype(np.int32), m.mesh_pos[perm], m.node_type[perm], m.rest_pos[perm])
+    params = dataclasses.replace(STILL, air_density=1.0, air_drag=0.05, wind_velocity=(0.0, 4.0, 0.0), cg_tol=1e-11)
+    a = ClothSolver(m, params, 0.02).simulate(m.rest_pos, swing_velocity(m, 1.0), 30)
+    b = ClothSolver(p, params, 0.02).simulate(p.rest_pos, swing_velocity(m, 1.0)[perm], 30)
+    assert np.abs(a[-1] - a[0]).max() > 0.1
+    np.testing.assert_allclose(b, a[:, perm], atol=2e-6)

@@ -45,7 +45,7 @@ class PipelineResult:
 
 def video_train_ids(ctx: TaskContext) -> list[int]:
     """Trajectories whose videos train the row: CloDS** all training ones, CloDS* the first half, CloDS the second half."""
-    from clods_bench.benchmark.tasks.cdg import split_spec
+    from clods_bench.benchmark.builders import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
     if opts.variant == "finetune":
@@ -59,7 +59,7 @@ def video_train_ids(ctx: TaskContext) -> list[int]:
 def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
     """Training camera indices used by stages 1-2: all, or the first `num_cameras` of them (neighbours on the rig:
     two cameras spread to opposite sides would see the cloth along one line, with no baseline to triangulate)."""
-    from clods_bench.benchmark.tasks.cdg import split_spec
+    from clods_bench.benchmark.builders import split_spec
 
     views = list(split_spec(ctx).train_views)
     if opts.num_cameras is not None:
@@ -82,7 +82,7 @@ class Extraction:
 
 def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
     """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, training cameras only), cached and resumable."""
-    from clods_bench.benchmark.tasks.cdg import split_spec
+    from clods_bench.benchmark.builders import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
     if not cfg.data.render_frames:
@@ -133,7 +133,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
 
 def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     """Stages 1-3 on the videos of `train_ids` (frames 0..interp_steps, training cameras only)."""
-    from clods_bench.benchmark.tasks.cdg import split_spec
+    from clods_bench.benchmark.builders import split_spec
 
     opts, splits = clods_config(ctx.config), split_spec(ctx)
     ext = extract_meshes(ctx, train_ids)

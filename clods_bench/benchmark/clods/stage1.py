@@ -59,7 +59,7 @@ def fit_stage1_keyed(
     cameras: Sequence[Camera],
 ) -> tuple[Renderer, dict[str, float], str]:
     """Fit (or load from the cache) the run's renderer on meshes `initial` (B,V,3) and images (B,N,H,W,3); also return its digest."""
-    from clods_bench.benchmark.tasks.nvs import build_renderer
+    from clods_bench.benchmark.builders import build_renderer
 
     cfg, opts = ctx.config, clods_config(ctx.config)
     if not cfg.renderer:

@@ -48,8 +48,8 @@ def bench_stage2(preset: str = "ci", renderer_name: str = "smgs", frames: int = 
     from clods_bench.benchmark.config import load_config
     from clods_bench.benchmark.descriptors import TaskContext
     from clods_bench.benchmark.registry import default_registry
-    from clods_bench.benchmark.tasks.cdg import split_spec
-    from clods_bench.benchmark.tasks.nvs import build_renderer
+    from clods_bench.benchmark.builders import split_spec
+    from clods_bench.benchmark.builders import build_renderer
     from clods_bench.datasets.generate import ensure_dataset
 
     overrides = [f"renderer_config.{renderer_name}.iterations={fit_iterations}"] + ([f"data.root={data_root}"] if data_root else [])

@@ -59,7 +59,7 @@ def train_simulator(
     """Fit the run's simulator on the extracted `meshes` (identified by `extraction_key`), after pre-training on the
     ground-truth meshes of `pretrain_ids` when given; return it and statistics (`*_cost_seconds`: training time,
     cached fits at their recorded cost). Both fits run in content-addressed work directories (`fit_cache`)."""
-    from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes
+    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes
 
     cfg = ctx.config
     stats: dict[str, float] = {}

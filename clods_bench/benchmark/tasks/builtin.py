@@ -6,6 +6,7 @@ from clods_bench.benchmark.descriptors import TaskSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
+from clods_bench.benchmark.tasks.dvc_multi import run_dvc_multi
 from clods_bench.benchmark.tasks.extract import run_extract
 from clods_bench.benchmark.tasks.nvs import run_nvs
 from clods_bench.benchmark.tasks.stability import run_stability
@@ -36,6 +37,11 @@ def clods_bench_tasks() -> list[TaskSpec]:
             name="dvc",
             description="DVC forward / video prediction: a video predictor (--predictor) or a simulator rolled out and rendered (--sim --renderer); PSNR/SSIM/LPIPS/RMSE (Table 4).",
             run=run_dvc,
+        ),
+        TaskSpec(
+            name="dvc_multi",
+            description="Video prediction trained on several trajectories: Extrapolation (their last frames) and Generalization (unseen trajectories' first frames); PSNR/SSIM/LPIPS/RMSE (appendix table).",
+            run=run_dvc_multi,
         ),
         TaskSpec(
             name="extract",

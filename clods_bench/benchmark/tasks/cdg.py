@@ -7,55 +7,13 @@ import time
 import numpy as np
 from rich.progress import Progress
 
-from clods_bench.atomic import file_lock
-from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
-from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
+from clods_bench.benchmark.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.fit_cache import fit_cost_seconds
+from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
 from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.benchmark.monitors import MeshMonitor, flat_rest_pos, scene_rest_mesh
-from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
-from clods_bench.errors import ClodsError
-
-
-def split_spec(ctx: TaskContext) -> SplitSpec:
-    """The paper's splits scaled to this run's data config."""
-    d = ctx.config.data
-    return SplitSpec(
-        num_train=d.num_train,
-        num_test=d.num_test,
-        num_steps=d.num_steps,
-        interp_steps=d.interp_steps,
-        num_views_train=d.num_cameras - d.num_views_test,
-        num_views_test=d.num_views_test,
-    )
-
-
-def build_simulator(ctx: TaskContext) -> Simulator:
-    """Build the configured simulator plugin for this seed."""
-    cfg = ctx.config
-    spec = ctx.registry.get("simulator", cfg.sim)
-    sim_cfg = spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
-    scene = ctx.registry.get("scene", cfg.data.scene)
-    sim = spec.build(sim_cfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
-    if not isinstance(sim, Simulator):
-        raise ClodsError("plugin did not return a Simulator (needs fit() and rollout())", where=f"simulator '{cfg.sim}'")
-    return sim
-
-
-def fit_on_meshes(ctx: TaskContext, sim: Simulator, store: DatasetStore, train_ids: list[int] | None = None) -> tuple[list[int], dict, float]:
-    """Fit `sim` on the interpolation frames of the training meshes (all, or the first half for `train_subset`
-    first_half) in its content-addressed work directory; return (train_ids, fit statistics, wall seconds)."""
-    cfg, splits = ctx.config, split_spec(ctx)
-    if train_ids is None:
-        train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
-    frames = splits.interp_steps + 1
-    train = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
-    work = fit_work_dir(ctx, sim_fit_identity(ctx, train_ids, frames, supervision="mesh"))
-    t0 = time.perf_counter()
-    with file_lock(work / "fit.lock"):  # a parallel job training the same fit: wait, then resume its finished checkpoint
-        stats = sim.fit(train, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
-    return list(train_ids), dict(stats), time.perf_counter() - t0
 
 
 def run_cdg(ctx: TaskContext) -> TaskResult:
@@ -63,6 +21,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     cfg = ctx.config
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    store.require_meshes("task cdg")
     clods_extra: dict[str, object] = {}
     t0 = time.perf_counter()
     if cfg.renderer:  # learned from video: the CloDS pipeline (stages 1-3) replaces mesh supervision

@@ -15,32 +15,38 @@ over every rendered frame 1..T-1 under `all/`.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Sequence
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.atomic import atomic_path
+from clods_bench.benchmark.builders import as_images, split_spec
 from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
-from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
+from clods_bench.benchmark.interfaces import RolloutInput, check_prediction, check_rollout
+from clods_bench.benchmark.media import write_image_grid
 from clods_bench.benchmark.metrics import divergence_step
-from clods_bench.benchmark.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes, split_spec
-from clods_bench.benchmark.tasks.nvs import _as_images, _write_grid, build_renderer
+from clods_bench.benchmark.video_runs import (
+    ImageScores,
+    build_predictor,
+    fit_predictor,
+    fit_renderer,
+    to_float,
+    train_simulator,
+    video_frames,
+    write_video,
+)
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
     from clods_bench.datasets.cameras import Camera
 
-METRICS = ("psnr", "ssim", "lpips", "rmse")
 Videos = dict[int, tuple[np.ndarray, np.ndarray]]
 """Per scored trajectory: (truth, prediction), each (N,F,H,W,3) over the scored views and frames."""
 GRID_FILE = "dvc_grid.png"
@@ -89,55 +95,12 @@ def dvc_options(ctx: TaskContext) -> DvcConfig:
     return opts
 
 
-def build_predictor(ctx: TaskContext) -> VideoPredictor:
-    """Build the configured video-predictor plugin for this seed."""
-    cfg = ctx.config
-    spec = ctx.registry.get("video_predictor", cfg.predictor)
-    pcfg = spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
-    scene = ctx.registry.get("scene", cfg.data.scene)
-    pred = spec.build(pcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
-    if not isinstance(pred, VideoPredictor):
-        raise ClodsError("plugin did not return a VideoPredictor (needs fit() and predict())", where=f"video predictor '{cfg.predictor}'")
-    return pred
-
-
 def _views(opts: DvcConfig, splits: Any) -> list[int]:
     """Indices of the scored cameras."""
     views = {"test": list(splits.test_views), "train": list(splits.train_views), "all": list(splits.train_views) + list(splits.test_views)}[opts.views]
     if not views:
         raise ClodsError("no cameras to score", where=f"{WHERE}.views", hint="data.num_views_test is 0: use views=train")
     return views
-
-
-def _float(frames: np.ndarray) -> np.ndarray:
-    return np.asarray(frames, dtype=np.float32) / 255.0
-
-
-class _Scores:
-    """Per-image scores collected frame by frame: (trajectory, frame) -> dict of (views,) arrays."""
-
-    def __init__(self, lpips: LpipsMetric | None) -> None:
-        self.lpips = lpips
-        self.rows: list[tuple[int, int, dict[str, np.ndarray]]] = []
-
-    def add(self, traj: int, frame: int, pred: np.ndarray, gt: np.ndarray) -> None:
-        s = image_scores(pred, gt, self.lpips)
-        s["rmse"] = np.sqrt(np.mean((pred.astype(np.float64) - gt.astype(np.float64)) ** 2, axis=(1, 2, 3)))
-        self.rows.append((traj, frame, s))
-
-    def means(self, frames: set[int] | None = None, prefix: str = "") -> dict[str, float]:
-        """Mean of every metric over all images (of the given frames)."""
-        rows = [s for _, f, s in self.rows if frames is None or f in frames]
-        return {prefix + k: float(np.mean(np.concatenate([s[k] for s in rows]))) for k in METRICS if rows and k in rows[0]}
-
-    def curves(self, frames: Sequence[int]) -> dict[str, list[float]]:
-        """Per-frame means over trajectories and views."""
-        out: dict[str, list[float]] = {}
-        for k in METRICS:
-            per = [[float(np.mean(s[k])) for _, f, s in self.rows if f == t and k in s] for t in frames]
-            if all(per):
-                out[k] = [float(np.mean(p)) for p in per]
-        return out
 
 
 def run_dvc(ctx: TaskContext) -> TaskResult:
@@ -157,6 +120,8 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
     opts = dvc_options(ctx)
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    if not use_predictor:
+        store.require_meshes(f"dvc with a simulator and renderer (--sim {cfg.sim} --renderer {cfg.renderer})")
     cams = store.cameras()
     views = _views(opts, splits)
     view_cams = [cams[v] for v in views]
@@ -165,7 +130,7 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
     h, w = view_cams[0].height, view_cams[0].width
     lpips: LpipsMetric | LpipsUnavailable = load_lpips() if opts.lpips else LpipsUnavailable(f"LPIPS switched off ({WHERE}.lpips=false)")
     lpips = lpips_for((h, w), lpips)
-    scores = _Scores(lpips if isinstance(lpips, LpipsMetric) else None)
+    scores = ImageScores(lpips if isinstance(lpips, LpipsMetric) else None)
     torch.manual_seed(ctx.seed)
 
     run = _run_predictor if use_predictor else _run_simulator
@@ -195,17 +160,15 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
 
 def _run_predictor(
     ctx: TaskContext, opts: DvcConfig, store: DatasetStore, traj_ids: list[int], views: list[int],
-    view_cams: list["Camera"], future: list[int], scores: _Scores,
+    view_cams: list["Camera"], future: list[int], scores: ImageScores,
 ) -> tuple[Videos, dict[str, float], dict[str, Any]]:  # fmt: skip
     """Train the predictor on frames 0..interp of every scored view, predict the rest, score it."""
     cfg = ctx.config
     observed = future[0]  # frames 0..observed-1 are given
     pred = build_predictor(ctx)
-    clips = {i: _float(store.frames(i)[:, views]).transpose(1, 0, 2, 3, 4) for i in traj_ids}  # (N,T,H,W,3), scored views only
+    clips = {i: to_float(store.frames(i)[:, views]).transpose(1, 0, 2, 3, 4) for i in traj_ids}  # (N,T,H,W,3), scored views only
     train = [clip[v, :observed] for clip in clips.values() for v in range(len(views))]
-    t0 = time.perf_counter()
-    stats = pred.fit(train, FitContext(work_dir=ctx.work_dir, seed=ctx.seed, progress=cfg.progress)) or {}
-    fit_seconds = time.perf_counter() - t0
+    stats, timings = fit_predictor(ctx, pred, train, traj_ids, views, observed)
     predict_seconds, videos = 0.0, {}
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"dvc ({cfg.predictor})", total=len(traj_ids))
@@ -219,50 +182,9 @@ def _run_predictor(
             videos[i] = (clip[:, future], out)
             bar.advance(job)
     images = len(traj_ids) * len(future) * len(views)
-    timings = {"fit_seconds": fit_seconds, "predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)}
+    timings.update({"predict_seconds": predict_seconds, "predict_ms_per_frame": 1000.0 * predict_seconds / max(images, 1)})
     timings.update({f"fit/{k}": float(v) for k, v in stats.items()})
     return videos, timings, {"train_videos": len(train), "context_frames": observed}
-
-
-def _pipeline() -> Any:
-    """The CloDS pipeline module, or None while it is not installed."""
-    try:
-        from clods_bench.benchmark.clods import pipeline
-    except ImportError:
-        return None
-    return pipeline
-
-
-def _train_simulator(ctx: TaskContext, opts: DvcConfig) -> tuple[Any, dict[str, float], str, dict[int, np.ndarray]]:
-    """The simulator for the rollouts, from the training videos (CloDS stages 1-3) or the ground-truth meshes; with
-    the video-trained one also the meshes stage 2 recovered per training trajectory (frames 0..interp_steps)."""
-    cfg = ctx.config
-    splits = split_spec(ctx)
-    train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
-    pipeline = _pipeline()
-    have_video = pipeline is not None and hasattr(pipeline, "train_from_video")
-    mode = ("video" if have_video else "mesh") if opts.sim_training == "auto" else opts.sim_training
-    t0 = time.perf_counter()
-    extracted: dict[int, np.ndarray] = {}
-    if mode == "video":
-        if not have_video:
-            raise ClodsError("the CloDS pipeline (clods_bench.benchmark.clods.pipeline.train_from_video) is not available",
-                             where=f"{WHERE}.sim_training", hint="set task_config.dvc.sim_training=mesh")  # fmt: skip
-        if hasattr(pipeline, "run_pipeline"):
-            result = pipeline.run_pipeline(ctx, train_ids)
-            sim, stats = result.simulator, result.stats
-            extracted = {int(i): m.world_pos for i, m in zip(train_ids, result.meshes)}
-        else:
-            sim, stats = pipeline.train_from_video(ctx, train_ids)
-    else:
-        store = DatasetStore.open(cfg.data.dataset_dir())
-        sim = build_simulator(ctx)
-        _, stats, _ = fit_on_meshes(ctx, sim, store, train_ids)
-    wall = time.perf_counter() - t0
-    cost = max(wall, float(stats.get("cost_seconds", 0.0))) if mode == "video" else fit_cost_seconds(wall, stats)
-    timings = {"sim_fit_seconds": cost, "sim_fit_wall_seconds": wall}
-    timings.update({f"sim_fit/{k}": float(v) for k, v in (stats or {}).items() if isinstance(v, (int, float))})
-    return sim, timings, mode, extracted
 
 
 def _rollout_input(traj: Any, opts: DvcConfig, extracted: dict[int, np.ndarray], index: int, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
@@ -282,35 +204,19 @@ def _rollout_input(traj: Any, opts: DvcConfig, extracted: dict[int, np.ndarray],
     return inp, np.asarray(known[: splits.interp_steps + 1], np.float32)
 
 
-def _fit_renderer(ctx: TaskContext, trajs: list[Any], images: np.ndarray, train_cams: list["Camera"]) -> tuple[Any, dict[str, float]]:
-    """Stage 1: one renderer fitted on frame 0 of the scored trajectories, images (B,N,H,W,3) from the training cameras.
-
-    Through the CloDS pipeline's `fit_stage1` when it is installed (cached: a run whose pipeline fitted the
-    same first frames reuses that fit), else the renderer plugin's own `fit`.
-    """
-    pipeline = _pipeline()
-    if pipeline is not None and hasattr(pipeline, "fit_stage1"):
-        out = pipeline.fit_stage1(ctx, trajs, images, train_cams)
-        return (out[0], dict(out[1] or {})) if isinstance(out, tuple) else (out, {})
-    renderer = build_renderer(ctx)
-    verts = np.stack([t.world_pos[0] for t in trajs]).astype(np.float32)
-    stats = renderer.fit(verts, trajs[0].cells, trajs[0].mesh_pos, images, train_cams)
-    return renderer, dict(stats or {})
-
-
 def _run_simulator(
     ctx: TaskContext, opts: DvcConfig, store: DatasetStore, traj_ids: list[int], views: list[int],
-    view_cams: list["Camera"], future: list[int], scores: _Scores,
+    view_cams: list["Camera"], future: list[int], scores: ImageScores,
 ) -> tuple[Videos, dict[str, float], dict[str, Any]]:  # fmt: skip
     """Algorithm S2: roll the simulator out from the initial mesh, render every frame, score it."""
     cfg = ctx.config
     splits = split_spec(ctx)
     train_views = list(splits.train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    sim, timings, mode, extracted = _train_simulator(ctx, opts)
+    sim, timings, mode, extracted = train_simulator(ctx, opts.sim_training)
     trajs = {i: store.load_trajectory(i) for i in traj_ids}
     t0 = time.perf_counter()
-    renderer, render_stats = _fit_renderer(ctx, list(trajs.values()), np.stack([_float(store.frames(i)[0, train_views]) for i in traj_ids]), train_cams)
+    renderer, render_stats = fit_renderer(ctx, list(trajs.values()), np.stack([to_float(store.frames(i)[0, train_views]) for i in traj_ids]), train_cams)
     render_fit = time.perf_counter() - t0
     timings.update({f"render_fit/{k}": float(v) for k, v in render_stats.items()})
     render_s, rollout_s, rendered, steps = 0.0, 0.0, 0, 0
@@ -319,7 +225,7 @@ def _run_simulator(
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"dvc ({cfg.sim}+{cfg.renderer})", total=len(traj_ids) * (splits.num_steps - 1))
         for i, traj in trajs.items():
-            clip = _float(store.frames(i)[:, views])  # (T,V,H,W,3), the scored views only
+            clip = to_float(store.frames(i)[:, views])  # (T,V,H,W,3), the scored views only
             inp, observed = _rollout_input(traj, opts, extracted, i, splits)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
@@ -338,7 +244,7 @@ def _run_simulator(
                     out = renderer.render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)
-                img = _as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
+                img = as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 scores.add(i, t, img, clip[t])
                 frames.append(img)
                 bar.advance(job)
@@ -357,49 +263,16 @@ def _run_simulator(
     return videos, timings, {"diverged": diverged, "sim_training": mode, "start": opts.start}
 
 
-def _upscale(img: np.ndarray, min_side: int = 128) -> np.ndarray:
-    k = max(1, math.ceil(min_side / max(img.shape[:2])))
-    return np.kron(img, np.ones((k, k, 1), dtype=img.dtype)) if k > 1 else img
-
-
-def _video_frames(truth: np.ndarray, pred: np.ndarray, gap: int = 2) -> np.ndarray:
-    """(F,H',W',3) uint8: per frame, the views' truth side by side above their predictions."""
-    n, f, h, w, _ = truth.shape
-    canvas = np.full((f, 2 * h + 3 * gap, n * (w + gap) + gap, 3), 0.5, np.float32)
-    for v in range(n):
-        x = gap + v * (w + gap)
-        canvas[:, gap : gap + h, x : x + w] = truth[v]
-        canvas[:, 2 * gap + h : 2 * gap + 2 * h, x : x + w] = pred[v]
-    return np.stack([np.clip(np.rint(_upscale(c) * 255.0), 0, 255).astype(np.uint8) for c in canvas])
-
-
-def write_video(path: Path, frames: np.ndarray, fps: float) -> Path:
-    """Write (F,H,W,3) uint8 frames as a looping GIF or an MP4 (by `path`'s suffix), atomically."""
-    import imageio.v3 as iio
-
-    if path.suffix == ".mp4":
-        try:
-            import imageio_ffmpeg  # noqa: F401
-        except ImportError:
-            raise ClodsError("writing MP4 needs the imageio-ffmpeg package", where=f"{WHERE}.video_format", hint="pip install imageio-ffmpeg, or use gif") from None
-        with atomic_path(path) as tmp:
-            iio.imwrite(tmp, frames, extension=".mp4", fps=fps)
-    else:
-        with atomic_path(path) as tmp:
-            iio.imwrite(tmp, frames, extension=".gif", duration=1000.0 / fps, loop=0)
-    return path
-
-
 def _write_outputs(work: Path, opts: DvcConfig, videos: Videos, future: list[int]) -> dict[str, Any]:
     """Per trajectory a truth-above-prediction video; for the first one a PNG grid of a few scored frames."""
     out: dict[str, Any] = {"videos": [], "grid": None}
     if opts.video_format != "none":
         for i, (truth, pred) in videos.items():
             path = work / f"dvc_traj{i}.{opts.video_format}"
-            out["videos"].append(str(write_video(path, _video_frames(truth, pred), opts.video_fps)))
+            out["videos"].append(str(write_video(path, video_frames(truth, pred), opts.video_fps)))
     if opts.grid_frames and videos:
         truth, pred = next(iter(videos.values()))
         picks = np.linspace(0, len(future) - 1, min(opts.grid_frames, len(future))).round().astype(int)
-        out["grid"] = str(_write_grid(work / GRID_FILE, [truth[:, k] for k in picks], [pred[:, k] for k in picks]))
+        out["grid"] = str(write_image_grid(work / GRID_FILE, [truth[:, k] for k in picks], [pred[:, k] for k in picks]))
         out["grid_frames"] = [future[k] for k in picks]
     return out

@@ -52,7 +52,9 @@ def _seeded(ctx: TaskContext) -> TaskContext:
 def run_extract(ctx: TaskContext) -> TaskResult:
     """One seed: stages 1-2 on the row's training videos; E-GT over the frames (mean, at the end, per phase)."""
     from clods_bench.benchmark.clods.pipeline import extract_meshes, video_train_ids
+    from clods_bench.datasets.store import DatasetStore
 
+    DatasetStore.open(ctx.config.data.dataset_dir()).require_meshes("task extract (E-GT compares with them)")
     opts = extract_config(ctx)
     ctx = _seeded(ctx)
     ids = video_train_ids(ctx)

@@ -11,27 +11,29 @@ first half of each (paper: 200 of 400 steps), fitted on the training cameras of 
 scored on the held-out cameras (`SplitSpec.test_views`: `num_views_test` spread evenly through the rig)
 at every scored frame, frame 0 included. "3DGS, trained separately per frame" is a renderer
 whose object has `per_frame = True`: it is fitted anew on every scored frame.
+
+On a dataset without meshes (imported from video) only per-frame renderers run: each frame's proxy geometry is the
+bounding box of the foreground's visual hull in the training views (`datasets.visual_hull`), in which 3DGS places
+its Gaussians (`renderer_config.gs3d.init=random` fills the box; the default 'visible' samples its faces).
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import BuildContext, TaskContext, TaskResult
+from clods_bench.benchmark.builders import as_images, build_renderer, split_spec
+from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import Renderer
-from clods_bench.benchmark.tasks.cdg import split_spec
+from clods_bench.benchmark.media import write_image_grid
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.visual_hull import box_mesh, hull_box
 from clods_bench.errors import ClodsError
 
 GRID_FILE = "nvs_grid.png"
@@ -75,28 +77,6 @@ def is_per_frame(renderer: Any) -> bool:
     return bool(getattr(renderer, "per_frame", False))
 
 
-def build_renderer(ctx: TaskContext) -> Renderer:
-    """Build the configured renderer plugin for this seed (a fresh object per fit)."""
-    cfg = ctx.config
-    spec = ctx.registry.get("renderer", cfg.renderer)
-    rcfg = spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
-    scene = ctx.registry.get("scene", cfg.data.scene)
-    renderer = spec.build(rcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
-    if not isinstance(renderer, Renderer):
-        raise ClodsError("plugin did not return a Renderer (needs fit() and render())", where=f"renderer '{cfg.renderer}'")
-    return renderer
-
-
-def _as_images(out: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
-    """A renderer's output as float32 (N,H,W,3) numpy in [0,1]; ClodsError on a wrong shape or NaN."""
-    arr = out.detach().cpu().numpy() if isinstance(out, torch.Tensor) else np.asarray(out)
-    if arr.shape != shape:
-        raise ClodsError(f"render returned shape {arr.shape}, expected {shape}", where=where)
-    if not np.isfinite(arr).all():
-        raise ClodsError("render returned NaN/Inf pixels", where=where)
-    return np.clip(arr.astype(np.float32), 0.0, 1.0)
-
-
 class _Frames:
     """The stored frames `times` x `views` of one trajectory, read once, indexed like the full (T, N, ...) array."""
 
@@ -125,6 +105,9 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     if splits.num_views_test < 1:
         raise ClodsError("NVS needs held-out cameras", where="data.num_views_test", hint="set it to 1 or more")
     store = DatasetStore.open(cfg.data.dataset_dir())
+    proxy = not store.has_meshes
+    if proxy and not is_per_frame(build_renderer(ctx)):
+        store.require_meshes(f"renderer '{cfg.renderer}' (it anchors to the per-frame ground-truth meshes)")
     cams = store.cameras()
     train_cams = [cams[v] for v in splits.train_views]
     test_cams = [cams[v] for v in splits.test_views]
@@ -146,28 +129,29 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames))
         for i in traj_ids:
-            traj = store.load_trajectory(i)
+            traj = None if proxy else store.load_trajectory(i)
             video = _Frames(store.frames(i), sorted({0, *frames}), train_idx + test_idx)  # only the frames and views scored or fitted
             traj_scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
             renderer = None
             for n, t in enumerate(frames):
+                if proxy:  # no meshes: the frame's visual-hull box from the training views
+                    verts, cells, mesh_pos = box_mesh(*hull_box(video[t, train_idx], train_cams))
+                else:
+                    verts, cells, mesh_pos = traj.world_pos[t].astype(np.float32), traj.cells, traj.mesh_pos
                 if renderer is None or per_frame:
                     renderer = build_renderer(ctx)
                     per_frame = is_per_frame(renderer)
-                    fit_t = t if per_frame else 0
+                    fit_verts = verts if per_frame else traj.world_pos[0].astype(np.float32)
                     t0 = time.perf_counter()
-                    stats = renderer.fit(
-                        traj.world_pos[fit_t][None].astype(np.float32), traj.cells, traj.mesh_pos,
-                        _to_float(video[fit_t, train_idx])[None], train_cams,
-                    )  # fmt: skip
+                    stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
                     fit_seconds += time.perf_counter() - t0
                     fits += 1
                     fit_stats.append(stats or {})
                 t0 = time.perf_counter()
                 with torch.no_grad():
-                    out = renderer.render(torch.from_numpy(traj.world_pos[t].astype(np.float32)), test_cams)
+                    out = renderer.render(torch.from_numpy(verts), test_cams)
                 render_seconds += time.perf_counter() - t0
-                pred = _as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
+                pred = as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 gt = _to_float(video[t, test_idx])
                 for k, v in image_scores(pred, gt, metric).items():
                     scores[k].append(v)
@@ -192,13 +176,14 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         timings[f"fit/{key}"] = float(np.mean([float(s[key]) for s in fit_stats if key in s]))
     shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
     curves = {k: np.stack(v).reshape(shape).mean(axis=(0, 2)).tolist() for k, v in scores.items() if v}  # per scored frame
-    grid_path = _write_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
+    grid_path = write_image_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
     extra = {
         "trajectories": traj_ids,
         "frames": frames,
         "train_views": train_idx,
         "test_views": test_idx,
         "per_frame": bool(per_frame),
+        "geometry": "visual-hull box (dataset without meshes)" if proxy else "ground-truth meshes",
         "fits": fits,
         "images": images,
         "per_trajectory": per_traj,
@@ -208,21 +193,3 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "grid": str(grid_path) if grid_path else None,
     }
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
-
-
-def _write_grid(path: Path, gts: list[np.ndarray], preds: list[np.ndarray], min_side: int = 128, gap: int = 2) -> Path:
-    """PNG grid: per held-out view a ground-truth row above a rendered row, one column per shown frame."""
-    import imageio.v3 as iio
-
-    views, h, w, _ = gts[0].shape
-    k = max(1, math.ceil(min_side / max(h, w)))
-    tile_h, tile_w = h * k + gap, w * k + gap
-    canvas = np.full((2 * views * tile_h + gap, len(gts) * tile_w + gap, 3), 0.5, dtype=np.float32)  # grey gaps
-    for c, (gt, pred) in enumerate(zip(gts, preds)):
-        for v in range(views):
-            for r, img in enumerate((gt[v], pred[v])):
-                y, x = gap + (2 * v + r) * tile_h, gap + c * tile_w
-                canvas[y : y + h * k, x : x + w * k] = np.kron(img, np.ones((k, k, 1), dtype=np.float32))
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, np.clip(np.rint(canvas * 255.0), 0, 255).astype(np.uint8), extension=".png")
-    return path

@@ -22,13 +22,13 @@ from rich.console import Console
 from rich.progress import Progress
 
 from clods_bench.atomic import write_npz
+from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.interfaces import RolloutInput, Simulator, check_rollout
 from clods_bench.benchmark.metrics import rmse_per_step
 from clods_bench.benchmark.monitors import MeshMonitor, first_failure, flat_rest_pos, scene_rest_mesh
 from clods_bench.benchmark.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.tasks.cdg import build_simulator, fit_on_meshes, split_spec
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -206,6 +206,7 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     splits = split_spec(ctx)
     scene = ctx.registry.get("scene", cfg.data.scene)
     store = DatasetStore.open(cfg.data.dataset_dir())
+    store.require_meshes("task stability")
     sim = build_simulator(ctx)
     name = cfg.sim or "?"
 

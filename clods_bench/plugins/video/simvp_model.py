@@ -72,7 +72,37 @@ class Translator(nn.Module):
         return z
 
 
-class SimVP(nn.Module):
+class EncoderTranslatorDecoder(nn.Module):
+    """SimVP's frame of work, shared with TAU: a per-frame conv encoder (`enc`), a translator over the frames stacked
+    on channels (`translator`), a per-frame conv decoder (`dec`) whose last layer also sees the first encoder layer's
+    output (`merge_skip`), and a 1x1 `readout` to RGB. (B,T,3,H,W) -> (B,T,3,H,W)."""
+
+    enc: nn.ModuleList
+    translator: nn.Module
+    dec: nn.ModuleList
+    readout: nn.Module
+
+    def merge_skip(self, z: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        """How the last decoder layer's input combines the decoded features with the skip connection."""
+        raise NotImplementedError
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, t, c, h, w = x.shape
+        z = x.reshape(b * t, c, h, w)
+        skip = z
+        for i, layer in enumerate(self.enc):
+            z = layer(z)
+            if i == 0:
+                skip = z
+        _, cz, hz, wz = z.shape
+        z = self.translator(z.reshape(b, t * cz, hz, wz)).reshape(b * t, cz, hz, wz)
+        for layer in self.dec[:-1]:
+            z = layer(z)
+        z = self.dec[-1](self.merge_skip(z, skip))
+        return self.readout(z).reshape(b, t, c, h, w)
+
+
+class SimVP(EncoderTranslatorDecoder):
     """(B,T,3,H,W) frames in [0,1] -> (B,T,3,H,W): the next T frames."""
 
     def __init__(self, frames: int, hid_s: int, hid_t: int, enc_layers: int, trans_layers: int, kernels: tuple[int, ...], groups: int) -> None:
@@ -86,17 +116,6 @@ class SimVP(nn.Module):
         self.dec.append(ConvSC(2 * hid_s, hid_s, rev[-1], transpose=True))
         self.readout = nn.Conv2d(hid_s, 3, 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, t, c, h, w = x.shape
-        z = x.reshape(b * t, c, h, w)
-        skip = None
-        for i, layer in enumerate(self.enc):
-            z = layer(z)
-            if i == 0:
-                skip = z
-        _, cz, hz, wz = z.shape
-        z = self.translator(z.reshape(b, t * cz, hz, wz)).reshape(b * t, cz, hz, wz)
-        for layer in self.dec[:-1]:
-            z = layer(z)
-        z = self.dec[-1](torch.cat([z, skip], dim=1))
-        return self.readout(z).reshape(b, t, c, h, w)
+    def merge_skip(self, z: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        """SimVP feeds the last decoder layer the decoded features concatenated with the first encoder layer's."""
+        return torch.cat([z, skip], dim=1)

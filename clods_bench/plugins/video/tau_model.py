@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from clods_bench.plugins.video.simvp_model import ConvSC, strides
+from clods_bench.plugins.video.simvp_model import ConvSC, EncoderTranslatorDecoder, strides
 
 
 def lka_kernels(kernel_size: int, dilation: int) -> tuple[int, int]:
@@ -91,7 +91,7 @@ class TauBlock(nn.Module):
         return self.reduction(x)
 
 
-class TAU(nn.Module):
+class TAU(EncoderTranslatorDecoder):
     """(B,T,3,H,W) frames in [0,1] -> (B,T,3,H,W): the next T frames."""
 
     def __init__(self, frames: int, hid_s: int, hid_t: int, enc_layers: int, trans_layers: int, kernel_size: int, mlp_ratio: float) -> None:
@@ -103,20 +103,9 @@ class TAU(nn.Module):
         self.dec = nn.ModuleList(ConvSC(hid_s, hid_s, s, transpose=True) for s in reversed(st))
         self.readout = nn.Conv2d(hid_s, 3, 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, t, c, h, w = x.shape
-        z = x.reshape(b * t, c, h, w)
-        skip = z
-        for i, layer in enumerate(self.enc):
-            z = layer(z)
-            if i == 0:
-                skip = z
-        _, cz, hz, wz = z.shape
-        z = self.translator(z.reshape(b, t * cz, hz, wz)).reshape(b * t, cz, hz, wz)
-        for layer in self.dec[:-1]:
-            z = layer(z)
-        z = self.dec[-1](z + skip)
-        return self.readout(z).reshape(b, t, c, h, w)
+    def merge_skip(self, z: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        """SimVP v2 (TAU) adds the first encoder layer's output to the decoded features."""
+        return z + skip
 
 
 def differential_divergence(pred: torch.Tensor, truth: torch.Tensor, temperature: float = 0.1) -> torch.Tensor:

@@ -4,8 +4,9 @@ Protocol (CloDS appendix, 'Dataset details'): the baselines "cannot utilize mult
 so every view of every training video is a separate single-view sample; windows of
 2*`context_frames` consecutive frames give (input, target) pairs. Adam with a one-cycle learning
 rate, random windows per step, and a resumable checkpoint (`<name>.pt` in the work directory):
-it stores the model, optimizer, scheduler and the window sampler's state, so a resumed run ends
-with the same weights as an uninterrupted one. A subclass says how to build its network, its
+it stores the model, optimizer, scheduler, the window sampler's state and the training seconds spent,
+so a resumed run ends with the same weights as an uninterrupted one and a finished checkpoint found
+again reports what its training cost. A subclass says how to build its network, its
 loss on one batch of windows and how it predicts; everything else is here.
 """
 
@@ -159,10 +160,10 @@ class WindowPredictor(abc.ABC, Generic[C]):
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=c.learning_rate, total_steps=c.train_steps)
         path = Path(ctx.work_dir) / self.checkpoint_file
         digest = config_digest(self.name, c, vids)
-        step, losses, rng = 0, [], np.random.default_rng(ctx.seed)
+        step, losses, rng, before = 0, [], np.random.default_rng(ctx.seed), 0.0
         if path.is_file():
-            step, losses, rng = self._resume(path, digest, model, opt, sched, ctx.seed)
-        t0 = time.perf_counter()
+            step, losses, rng, before = self._resume(path, digest, model, opt, sched, ctx.seed)
+        t0, spent = time.perf_counter(), before
         show = ctx.progress and self.progress
         with torch_threads(c.num_threads or None), Progress(transient=True, disable=not show) as bar:
             job = bar.add_task(f"{self.name} training", total=c.train_steps, completed=step)
@@ -179,11 +180,12 @@ class WindowPredictor(abc.ABC, Generic[C]):
                 step += 1
                 bar.update(job, completed=step, description=f"{self.name} training (loss {np.mean(losses[-20:]):.2e})")
                 if (c.checkpoint_every and step % c.checkpoint_every == 0) or step == c.train_steps:
-                    self._save(path, digest, step, losses, rng, model, opt, sched)
+                    spent = before + time.perf_counter() - t0
+                    self._save(path, digest, step, losses, rng, model, opt, sched, spent)
         self.model = model.eval()
         k = max(1, min(20, len(losses) // 10))
         return {
-            "train_seconds": time.perf_counter() - t0,
+            "train_seconds": spent,  # as of the last checkpoint, with earlier calls' steps (a resumed or cached fit)
             "train_steps": float(c.train_steps),
             "train_windows": float(len(starts)),
             "initial_loss": float(np.mean(losses[:k])),
@@ -191,7 +193,10 @@ class WindowPredictor(abc.ABC, Generic[C]):
             "parameters": float(sum(p.numel() for p in model.parameters())),
         }
 
-    def _save(self, path: Path, digest: str, step: int, losses: list[float], rng: np.random.Generator, model: nn.Module, opt: Any, sched: Any) -> None:
+    def _save(
+        self, path: Path, digest: str, step: int, losses: list[float], rng: np.random.Generator, model: nn.Module, opt: Any, sched: Any,
+        seconds: float = 0.0,
+    ) -> None:  # fmt: skip
         payload = {
             "format": CHECKPOINT_FORMAT,
             "digest": digest,
@@ -201,11 +206,14 @@ class WindowPredictor(abc.ABC, Generic[C]):
             "model": model.state_dict(),
             "optimizer": opt.state_dict(),
             "scheduler": sched.state_dict(),
+            "train_seconds": float(seconds),
         }
         with atomic_path(path) as tmp:
             torch.save(payload, tmp)
 
-    def _resume(self, path: Path, digest: str, model: nn.Module, opt: Any, sched: Any, seed: int) -> tuple[int, list[float], np.random.Generator]:
+    def _resume(self, path: Path, digest: str, model: nn.Module, opt: Any, sched: Any, seed: int) -> tuple[int, list[float], np.random.Generator, float]:
+        """(step, losses, window sampler, training seconds so far) of the checkpoint at `path`, loaded into the model,
+        optimizer and scheduler; a checkpoint of another config or other videos is a ClodsError."""
         hint = "delete it (or use another work directory) to train from scratch"
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
@@ -222,7 +230,7 @@ class WindowPredictor(abc.ABC, Generic[C]):
         rng = np.random.default_rng(seed + 1000 * step)  # checkpoints written before the sampler state was stored
         if "rng" in payload:
             rng.bit_generator.state = json.loads(payload["rng"])
-        return step, list(payload["losses"]), rng
+        return step, list(payload["losses"]), rng, float(payload.get("train_seconds", 0.0))  # 0: written before it was stored
 
     @torch.no_grad()
     def predict(self, context: np.ndarray, num_frames: int, cameras: Sequence[Any] = ()) -> np.ndarray:

@@ -146,7 +146,7 @@ def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_
     from clods_bench.benchmark.descriptors import TaskContext
     from clods_bench.benchmark.registry import Registry, make_plugin_manager
     from clods_bench.benchmark.runner import check_plugins
-    from clods_bench.benchmark.tasks.cdg import build_simulator
+    from clods_bench.benchmark.builders import build_simulator
 
     registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
     cfg = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="acme", renderer="smgs")
