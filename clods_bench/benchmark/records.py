@@ -47,6 +47,10 @@ def record_dir(cfg: RunConfig) -> Path:
     ident["data"].pop("root")
     if ident["data"].get("path") is None:  # added with imported datasets: left out when unused, records keep their digest
         ident["data"].pop("path", None)
+    # Only the options of the plugins the run uses: a preset gaining another simulator's or renderer's options
+    # (a new plugin, built in or third-party) must not move every record.
+    ident["sim_config"] = {cfg.sim: ident["sim_config"].get(cfg.sim, {})} if cfg.sim else {}
+    ident["renderer_config"] = {cfg.renderer: ident["renderer_config"].get(cfg.renderer, {})} if cfg.renderer else {}
     if cfg.predictor is None:  # fields added with the dvc task: left out when unused, so older records keep their digest
         ident.pop("predictor")
         ident.pop("video_config")

@@ -45,3 +45,18 @@ def test_the_saved_config_holds_the_plugins_full_options(tmp_path: Path, tiny_ro
     assert saved["sim_config"]["physics"] == resolve_plugin_configs(cfg, default_registry()).sim_config["physics"]
     assert "dt_factor" in saved["sim_config"]["physics"]  # a default nobody set, recorded all the same
     assert rdir == record_dir(resolve_plugin_configs(cfg, default_registry()))
+
+
+def test_options_of_plugins_the_run_does_not_use_do_not_move_its_record() -> None:
+    """A preset gaining a new plugin's options (e.g. a third-party simulator's) keeps every other run's record."""
+    reg = default_registry()
+
+    def rdir(*sets: str, **fields: str) -> Path:
+        return record_dir(resolve_plugin_configs(load_config("ci", overrides=list(sets), **fields), reg))
+
+    cdg = {"task": "cdg", "sim": "mgn", "renderer": "smgs"}
+    base = rdir(**cdg)
+    assert rdir("sim_config.mythirdpartysim.depth=3", "renderer_config.gs3d.iterations=7", **cdg) == base
+    assert rdir("sim_config.mgn.latent_size=32", **cdg) != base  # the used simulator's options do count
+    assert rdir("renderer_config.smgs.gaussians_per_face=10", **cdg) != base  # and the used renderer's
+    assert rdir("sim_config.mgn.latent_size=32", task="nvs", renderer="gs3d") == rdir(task="nvs", renderer="gs3d")
