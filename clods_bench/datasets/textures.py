@@ -98,8 +98,8 @@ def procedural_texture(size: int = 512, seed: int = 0) -> np.ndarray:
 
 
 def stripes_texture(size: int = 512, seed: int = 0) -> np.ndarray:
-    """(size,size,3) float32 coarse two-colour stripes along the rows (constant along u), `STRIPE_PERIODS` light/dark
-    pairs per side, seeded colours; a texture with structure at one large scale and none across the stripes."""
+    """(size,size,3) float32 coarse two-colour stripes (colour changes down the rows, constant along each row),
+    `STRIPE_PERIODS` light/dark pairs per side, seeded colours: structure at one large scale only."""
     size = _check_size(size)
     if size % (2 * STRIPE_PERIODS):
         raise ClodsError(f"size must be a multiple of {2 * STRIPE_PERIODS} for stripes, got {size}", where="texture.size")
@@ -126,7 +126,7 @@ def weave_texture(size: int = 512, seed: int = 0) -> np.ndarray:
     thread = coord // pitch
     bump = np.sin(np.pi * (coord % pitch + 0.5) / pitch)  # 0 at a thread's edges, 1 at its middle
     over = (thread[:, None] + thread[None, :]) % 2 == 0  # warp over weft on a checkerboard of crossings
-    shade = np.where(over, 0.04 * bump[None, :], -0.04 * bump[:, None])  # warp runs along rows' index (v)
+    shade = np.where(over, 0.04 * bump[None, :], -0.04 * bump[:, None])
     img = base[None, None, :] * (1.0 + shade[..., None]) + 0.01 * _periodic_noise(rng, size, 1.5)
     return np.clip(img, 0.0, 1.0).astype(np.float32)
 
@@ -185,6 +185,8 @@ def load_texture(path: str | os.PathLike[str]) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise ClodsError("texture file not found", where=str(p))
+    if p.stat().st_size == 0:
+        raise ClodsError("texture file is empty", where=str(p))
     try:
         img = np.asarray(iio.imread(p, plugin="pillow"))
     except Exception as exc:  # imageio raises many types for unreadable files

@@ -162,6 +162,7 @@ def test_bad_file_texture_names_field_and_file(tmp_path, case: str) -> None:
     with pytest.raises(ClodsError) as err:
         make_named_texture(f"file:{path}", seed=0)
     assert err.value.where == "data.texture" and path.name in err.value.message
+    assert {"missing": "not found", "empty": "is empty", "garbage": "cannot read", "two_channels": "shape"}[case] in err.value.what
 
 
 def test_unknown_texture_name_lists_the_known_ones() -> None:
