@@ -102,7 +102,8 @@ def stripes_texture(size: int = 512, seed: int = 0) -> np.ndarray:
     `STRIPE_PERIODS` light/dark pairs per side, seeded colours: structure at one large scale only."""
     size = _check_size(size)
     if size % (2 * STRIPE_PERIODS):
-        raise ClodsError(f"size must be a multiple of {2 * STRIPE_PERIODS} for stripes, got {size}", where="texture.size")
+        raise ClodsError(f"size must be a multiple of {2 * STRIPE_PERIODS} for stripes, got {size}",
+                         where="texture.size")  # fmt: skip
     rng = np.random.default_rng(seed)
     hue = rng.random()
     light = _hsv_to_rgb(np.array(hue), np.array(0.6), np.array(0.9))

@@ -53,7 +53,7 @@ def test_file_texture_dataset_stores_the_files_pixels(tmp_path: Path) -> None:
 
     pixels = np.random.default_rng(1).integers(0, 256, (32, 48, 3), dtype=np.uint8)
     iio.imwrite(tmp_path / "cloth.png", pixels)
-    d = DataConfig(resolution=[4, 3], num_train=2, num_test=1, num_steps=4, interp_steps=2, image_size=16, num_cameras=2,
-                   num_views_test=1, texture=f"file:{tmp_path / 'cloth.png'}", root=str(tmp_path / "data"))  # fmt: skip
+    d = DataConfig(resolution=[4, 3], num_train=2, num_test=1, num_steps=4, interp_steps=2, image_size=16,
+                   num_cameras=2, num_views_test=1, texture=f"file:{tmp_path / 'cloth.png'}", root=str(tmp_path / "data"))  # fmt: skip
     generate(d, get_scene("flag"), progress=False)
     np.testing.assert_array_equal(iio.imread(d.dataset_dir() / TEXTURE_FILE), pixels)
