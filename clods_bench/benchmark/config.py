@@ -19,6 +19,7 @@ from typing import Any, Literal
 
 import yaml
 
+from clods_bench.datasets.textures import texture_file_digest
 from clods_bench.errors import ClodsError, closest, unknown_name
 
 CONFIG_VERSION = 1
@@ -57,7 +58,8 @@ class DataConfig:
     supersample: int = 2
     """Anti-aliasing factor of the ground-truth rasterizer."""
     texture: str = "procedural"
-    """'procedural' or the path of an image file."""
+    """A named texture (procedural: multi-scale pattern; stripes: coarse stripes; weave: low-contrast weave) or an
+    image file: `file:PATH` or a path ending in .png/.jpg/.jpeg (its content's sha256 joins the dataset identity)."""
     render_frames: bool = True
     """Render multi-view frames (tasks on meshes alone can switch this off)."""
     seed: int = 0
@@ -71,11 +73,15 @@ class DataConfig:
 
     def identity(self) -> dict[str, Any]:
         """The fields that decide what data is generated (everything but `root`), and the generator version; `path`
-        only when set (an existing dataset is named by where it is; generated ones keep their old identity)."""
+        only when set (an existing dataset is named by where it is; generated ones keep their old identity); for an
+        image-file texture, the sha256 of the file's bytes (editing the file gives a new dataset)."""
         d = dataclasses.asdict(self)
         d.pop("root")
         if d["path"] is None:
             d.pop("path")
+            digest = texture_file_digest(self.texture)  # None for named textures: their identities stay as before
+            if digest is not None:
+                d["texture_sha256"] = digest
         d["generator_version"] = DATA_GENERATOR_VERSION
         return d
 

@@ -27,7 +27,7 @@ from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
 from clods_bench.datasets.scenes import SceneSpec, simulate_scene
 from clods_bench.datasets.store import DatasetStore
-from clods_bench.datasets.textures import load_texture, procedural_texture, save_texture
+from clods_bench.datasets.textures import make_named_texture, save_texture
 from clods_bench.datasets.types import ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
 
@@ -61,10 +61,8 @@ def make_cameras(d: DataConfig, mesh: ClothMesh) -> list[Camera]:
 
 
 def make_texture(d: DataConfig) -> np.ndarray:
-    """The cloth texture: procedural (seeded) or loaded from an image file."""
-    if d.texture == "procedural":
-        return procedural_texture(512, seed=d.seed)
-    return load_texture(Path(d.texture))
+    """The cloth texture `data.texture` names: a seeded named pattern or an image file's pixels."""
+    return make_named_texture(d.texture, seed=d.seed)
 
 
 def render_steps(

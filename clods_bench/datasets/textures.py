@@ -1,4 +1,8 @@
-"""Cloth textures: a seeded, seamlessly tiling procedural pattern, and image file I/O.
+"""Cloth textures: seeded, seamlessly tiling procedural patterns by name, image files, and image file I/O.
+
+`data.texture` names a texture: one of `TEXTURE_NAMES` (procedural: the default multi-scale pattern; stripes:
+coarse two-colour stripes; weave: a low-contrast basket weave), or an image file, written `file:PATH` or as a
+path ending in .png/.jpg/.jpeg (see `texture_file` and `make_named_texture`).
 
 The procedural texture has detail at several scales (random-coloured checker cells, smooth
 periodic colour noise at three scales, wrapped Gaussian blobs, thin dark grid lines), so a
@@ -8,15 +12,27 @@ is periodic over the image, so the texture tiles without seams (the rasterizer w
 
 from __future__ import annotations
 
+import hashlib
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from clods_bench.atomic import atomic_path
-from clods_bench.errors import ClodsError
+from clods_bench.errors import ClodsError, unknown_name
 
-__all__ = ["procedural_texture", "load_texture", "save_texture"]
+__all__ = [
+    "procedural_texture", "stripes_texture", "weave_texture", "load_texture", "save_texture", "TEXTURE_NAMES",
+    "STRIPE_PERIODS", "WEAVE_THREADS", "texture_file", "texture_file_digest", "make_named_texture",
+]  # fmt: skip
+
+STRIPE_PERIODS = 4
+"""Light/dark stripe pairs across the stripes texture (period = size / 4: 128 px at 512, a quarter of the cloth)."""
+WEAVE_THREADS = 32
+"""Threads per side of the weave texture (one over/under crossing = 2 threads)."""
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+MAX_FILE_TEXTURE_SIDE = 8192
 
 
 def _hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -39,11 +55,16 @@ def _periodic_noise(rng: np.random.Generator, size: int, scale: float) -> np.nda
     return np.moveaxis(noise, 0, -1)
 
 
-def procedural_texture(size: int = 512, seed: int = 0) -> np.ndarray:
-    """(size,size,3) float32 colourful, seamlessly tiling texture in [0,1] (deterministic per seed)."""
+def _check_size(size: int) -> int:
+    """`size` as an int, ClodsError unless it is an integer >= 16."""
     if int(size) != size or size < 16:
         raise ClodsError(f"size must be an integer >= 16, got {size}", where="texture.size")
-    size = int(size)
+    return int(size)
+
+
+def procedural_texture(size: int = 512, seed: int = 0) -> np.ndarray:
+    """(size,size,3) float32 colourful, seamlessly tiling texture in [0,1] (deterministic per seed)."""
+    size = _check_size(size)
     rng = np.random.default_rng(seed)
     coord = np.arange(size)
     # checker cells with random, well-spread colours (8 x 8 cells over the image)
@@ -76,6 +97,88 @@ def procedural_texture(size: int = 512, seed: int = 0) -> np.ndarray:
     return np.clip(img, 0.0, 1.0).astype(np.float32)
 
 
+def stripes_texture(size: int = 512, seed: int = 0) -> np.ndarray:
+    """(size,size,3) float32 coarse two-colour stripes (colour changes down the rows, constant along each row),
+    `STRIPE_PERIODS` light/dark pairs per side, seeded colours: structure at one large scale only."""
+    size = _check_size(size)
+    if size % (2 * STRIPE_PERIODS):
+        raise ClodsError(f"size must be a multiple of {2 * STRIPE_PERIODS} for stripes, got {size}",
+                         where="texture.size")  # fmt: skip
+    rng = np.random.default_rng(seed)
+    hue = rng.random()
+    light = _hsv_to_rgb(np.array(hue), np.array(0.6), np.array(0.9))
+    dark = _hsv_to_rgb(np.array((hue + 0.5) % 1.0), np.array(0.7), np.array(0.35))
+    period = size // STRIPE_PERIODS
+    band = (np.arange(size) % period) < period // 2  # rows of the light half of each period
+    img = np.where(band[:, None, None], light[None, None, :], dark[None, None, :])
+    return np.broadcast_to(img, (size, size, 3)).astype(np.float32).copy()
+
+
+def weave_texture(size: int = 512, seed: int = 0) -> np.ndarray:
+    """(size,size,3) float32 low-contrast basket weave: one seeded yarn colour, each thread's crossing shaded by a
+    smooth bump (over: lighter middle, under: darker), +-4% brightness, plus faint periodic fibre noise."""
+    size = _check_size(size)
+    if size % WEAVE_THREADS:
+        raise ClodsError(f"size must be a multiple of {WEAVE_THREADS} for weave, got {size}", where="texture.size")
+    rng = np.random.default_rng(seed)
+    base = _hsv_to_rgb(np.array(rng.random()), np.array(0.35), np.array(0.7))
+    pitch = size // WEAVE_THREADS
+    coord = np.arange(size)
+    thread = coord // pitch
+    bump = np.sin(np.pi * (coord % pitch + 0.5) / pitch)  # 0 at a thread's edges, 1 at its middle
+    over = (thread[:, None] + thread[None, :]) % 2 == 0  # warp over weft on a checkerboard of crossings
+    shade = np.where(over, 0.04 * bump[None, :], -0.04 * bump[:, None])
+    img = base[None, None, :] * (1.0 + shade[..., None]) + 0.01 * _periodic_noise(rng, size, 1.5)
+    return np.clip(img, 0.0, 1.0).astype(np.float32)
+
+
+TEXTURES: dict[str, Callable[[int, int], np.ndarray]] = {
+    "procedural": procedural_texture, "stripes": stripes_texture, "weave": weave_texture,
+}  # fmt: skip
+TEXTURE_NAMES = tuple(TEXTURES)
+
+
+def texture_file(spec: str) -> Path | None:
+    """The image file a `data.texture` value names (`file:PATH`, or a path ending in .png/.jpg/.jpeg), else None."""
+    if spec.startswith("file:"):
+        return Path(spec[len("file:") :])
+    if spec.lower().endswith(IMAGE_SUFFIXES):
+        return Path(spec)
+    return None
+
+
+def _check_spec(spec: str) -> Path | None:
+    """The file of a file texture; None for a known name; ClodsError naming `data.texture` otherwise."""
+    path = texture_file(spec)
+    if path is None and spec not in TEXTURES:
+        err = unknown_name("texture", spec, TEXTURE_NAMES)
+        raise ClodsError(err.what, where="data.texture", hint=err.hint or "or an image file: file:PATH, *.png, *.jpg")
+    return path
+
+
+def texture_file_digest(spec: str) -> str | None:
+    """sha256 of the bytes of the image file `spec` names (None for a named texture): a dataset's identity follows
+    the file's content, not only its path."""
+    path = _check_spec(spec)
+    if path is None:
+        return None
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ClodsError(f"cannot read texture file {path}: {exc.strerror or exc}", where="data.texture") from exc
+
+
+def make_named_texture(spec: str, seed: int, size: int = 512) -> np.ndarray:
+    """The texture a `data.texture` value names: a named pattern (size x size, seeded) or the image file's pixels."""
+    path = _check_spec(spec)
+    if path is None:
+        return TEXTURES[spec](size, seed)
+    try:
+        return load_texture(path)
+    except ClodsError as exc:
+        raise ClodsError(f"texture file {path}: {exc.what}", where="data.texture", hint=exc.hint) from exc
+
+
 def load_texture(path: str | os.PathLike[str]) -> np.ndarray:
     """(H,W,3) float32 RGB in [0,1] from a PNG/JPG (RGB, RGBA (alpha dropped) or grey)."""
     import imageio.v3 as iio
@@ -83,6 +186,8 @@ def load_texture(path: str | os.PathLike[str]) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise ClodsError("texture file not found", where=str(p))
+    if p.stat().st_size == 0:
+        raise ClodsError("texture file is empty", where=str(p))
     try:
         img = np.asarray(iio.imread(p, plugin="pillow"))
     except Exception as exc:  # imageio raises many types for unreadable files
@@ -93,6 +198,9 @@ def load_texture(path: str | os.PathLike[str]) -> np.ndarray:
         img = np.repeat(img[..., None], 3, axis=2)
     if img.ndim != 3 or img.shape[2] not in (3, 4) or img.shape[0] < 1 or img.shape[1] < 1:
         raise ClodsError(f"texture image has shape {img.shape}, expected (H, W), (H, W, 3) or (H, W, 4)", where=str(p))
+    if max(img.shape[:2]) > MAX_FILE_TEXTURE_SIDE:
+        raise ClodsError(f"texture image is {img.shape[1]} x {img.shape[0]} px, larger than {MAX_FILE_TEXTURE_SIDE}",
+                         where=str(p), hint="downscale it; the rasterizer samples any size")
     img = img[..., :3]
     if np.issubdtype(img.dtype, np.integer):
         out = img.astype(np.float32) / float(np.iinfo(img.dtype).max)

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from clods_bench.datasets.textures import load_texture, procedural_texture, save_texture
+from clods_bench.datasets.textures import (
+    STRIPE_PERIODS, TEXTURE_NAMES, load_texture, make_named_texture, procedural_texture, save_texture, texture_file,
+)
 from clods_bench.errors import ClodsError
 
 
@@ -94,3 +96,77 @@ def test_missing_or_unreadable_file_names_the_path(tmp_path):
     assert "junk.png" in str(info.value)
     with pytest.raises(ClodsError, match="shape"):
         save_texture(tmp_path / "x.png", np.zeros((4, 4)))
+
+
+# ---- named textures and file textures (data.texture)
+
+LUMA = np.array([0.299, 0.587, 0.114])
+
+
+def test_procedural_is_bit_identical_to_before() -> None:
+    """sha256 of the float32 bytes, computed with main's code before named textures existed (same numpy)."""
+    import hashlib
+
+    want = {0: "45a01384884bafb6cc9a0e01a4bb95c915c387ec389bd1e63bae1d59952711c1",
+            3: "70f16901d8db42a74a9097541dc3eb0ab7170939048366c64135111b64cf90b6"}  # fmt: skip
+    for seed, digest in want.items():
+        assert hashlib.sha256(make_named_texture("procedural", seed).tobytes()).hexdigest() == digest
+
+
+def test_stripes_dominant_period_is_the_configured_one() -> None:
+    """The FFT of the row luminance peaks at STRIPE_PERIODS cycles per side; nothing varies along a row."""
+    tex = make_named_texture("stripes", seed=2)
+    lum = tex @ LUMA
+    assert lum.std(axis=1).max() == 0.0
+    spectrum = np.abs(np.fft.rfft(lum[:, 0] - lum[:, 0].mean()))
+    assert int(np.argmax(spectrum)) == STRIPE_PERIODS
+    assert tex.shape[0] / np.argmax(spectrum) == 512 // STRIPE_PERIODS
+    assert lum.std() > 0.05  # two clearly different colours
+
+
+def test_weave_is_low_contrast_and_tiles() -> None:
+    weave, multi = make_named_texture("weave", seed=1), make_named_texture("procedural", seed=1)
+    lw, lm = weave @ LUMA, multi @ LUMA
+    assert lw.std() < 0.03 and lw.std() < lm.std() / 5  # measured: 0.016 against 0.17
+    assert lw.std() > 0.005  # still a pattern, not a flat colour
+    # the wrap-around seam is a thread boundary like column 256's: the step across it is alike
+    for tile in (weave, weave.transpose(1, 0, 2)):
+        seam, inside = np.abs(tile[:, 0] - tile[:, -1]).mean(), np.abs(tile[:, 256] - tile[:, 255]).mean()
+        assert seam < 1.5 * inside
+    np.testing.assert_array_equal(weave, make_named_texture("weave", seed=1))
+    assert np.abs(weave - make_named_texture("weave", seed=2)).mean() > 0.02
+
+
+def test_file_texture_is_the_files_pixels(tmp_path) -> None:
+    import imageio.v3 as iio
+
+    pixels = np.random.default_rng(0).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    iio.imwrite(tmp_path / "cloth.png", pixels)
+    for spec in (f"file:{tmp_path / 'cloth.png'}", str(tmp_path / "cloth.png")):
+        tex = make_named_texture(spec, seed=0)
+        np.testing.assert_array_equal(tex, pixels.astype(np.float32) / 255.0)
+    assert texture_file("file:a/b") is not None and texture_file("weave") is None
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "garbage", "two_channels"])
+def test_bad_file_texture_names_field_and_file(tmp_path, case: str) -> None:
+    import imageio.v3 as iio
+
+    path = tmp_path / f"{case}.png"
+    if case == "empty":
+        path.write_bytes(b"")
+    elif case == "garbage":
+        path.write_bytes(b"not an image at all")
+    elif case == "two_channels":
+        iio.imwrite(path, np.zeros((8, 8, 2), dtype=np.uint8))
+    with pytest.raises(ClodsError) as err:
+        make_named_texture(f"file:{path}", seed=0)
+    assert err.value.where == "data.texture" and path.name in err.value.message
+    assert {"missing": "not found", "empty": "is empty", "garbage": "cannot read", "two_channels": "shape"}[case] in err.value.what
+
+
+def test_unknown_texture_name_lists_the_known_ones() -> None:
+    with pytest.raises(ClodsError) as err:
+        make_named_texture("strips", seed=0)
+    assert err.value.where == "data.texture"
+    assert all(name in err.value.what for name in TEXTURE_NAMES) and "stripes" in (err.value.hint or "")
