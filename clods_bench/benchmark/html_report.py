@@ -4,7 +4,9 @@ It holds every table found in the run records (one per task and scene/preset, th
 `tables.py`), the error-against-time plots and rollout RMSE curves of `report.py` (whose PNG and
 CSV files are kept next to the page), and the media the runs wrote: novel-view image grids
 (`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories), and, when a
-`bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot.
+`bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot. Mesh samples
+the CDG and extract tasks saved (`*_meshes.npz`) are drawn as pictures: truth beside the extracted or predicted cloth
+with per-node error as colour (PNGs under `meshes/` next to the page).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from clods_bench.atomic import write_text
+from clods_bench.benchmark.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.records import iter_records
 from clods_bench.errors import ClodsError
 
@@ -70,6 +73,12 @@ def _seed_media(rdir: Path, seeds: int = 1) -> list[Path]:
     for seed_dir in dirs[:seeds]:
         found += sorted(p for p in seed_dir.rglob("*") if p.is_file() and p.suffix.lower() in MEDIA_SUFFIXES and not p.name.startswith("."))
     return found
+
+
+def _seed_mesh_samples(rdir: Path, seeds: int = 1) -> list[Path]:
+    """Mesh samples (`*_meshes.npz`) the first `seeds` seeds of a run saved, drawn as pictures by the report."""
+    dirs = sorted((d for d in rdir.glob("seed_*") if d.is_dir() and d.name[5:].isdigit()), key=lambda d: int(d.name[5:]))
+    return [p for d in dirs[:seeds] for p in sorted(d.glob(f"*{MESH_SUFFIX}"))]
 
 
 def infer_section(bench_dir: Path, out_dir: Path) -> tuple[str, list[Path]]:
@@ -144,6 +153,10 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                 for path in _seed_media(rdir, media_seeds):
                     rel = path.relative_to(rdir)
                     parts.append(media_html(path, f"{rec['label']} ({rec['scene']}): {rel}"))
+                for sample in _seed_mesh_samples(rdir, media_seeds):
+                    png = out_dir / "meshes" / f"{rdir.parent.name}_{rdir.name}_{sample.parent.name}_{sample.stem}.png"
+                    written.append(plot_mesh_sample(sample, png))
+                    parts.append(media_html(png, f"{rec['label']} ({rec['scene']}): {sample.relative_to(rdir)}, per-node error as colour"))
     if infer_html:
         toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")
         parts.append(infer_html)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.interfaces import RolloutInput
+from clods_bench.benchmark.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.runner import run_task
@@ -52,6 +53,13 @@ def test_constvel_cdg_matches_independent_numbers(tiny_root: Path, tmp_path: Pat
     store = DatasetStore.open(cfg.data.dataset_dir())
     viewed = [store.load_trajectory(1)]  # num_train=2: second half = trajectory 1
     unviewed = [store.load_trajectory(2)]
+    # the picture sample: the unviewed trajectory's rollout, against the longhand constant-velocity one
+    cells, meshes, truth, marks, _ = load_mesh_sample(rdir / "seed_0" / "rollout_meshes.npz")
+    assert cells.tolist() == unviewed[0].cells.tolist() and marks == [8] and list(meshes) == ["constvel"]
+    np.testing.assert_allclose(truth, unviewed[0].world_pos[: len(truth)], rtol=1e-6)
+    np.testing.assert_allclose(meshes["constvel"], _independent_constvel(unviewed[0].world_pos, unviewed[0].node_type)[: len(truth)], atol=1e-5)
+    assert len(truth) == 12  # the tiny preset's rollout length (d_end of extrapolation is frame 11 below)
+    assert not (rdir / "seed_0" / "extraction_meshes.npz").exists()  # mesh-supervised: nothing extracted
     for group, trajs in (("viewed", viewed), ("unviewed", unviewed)):
         curves = np.stack([_independent_constvel_rmse(t.world_pos, t.node_type) for t in trajs])
         assert rec["metrics"][f"{group}/interp/d_avg"]["mean"] == pytest.approx(curves[:, 2:9].mean(), rel=1e-5)

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from clods_bench.benchmark.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.runner import run_task
@@ -42,6 +43,9 @@ def test_egt_matches_the_cached_meshes_and_seeds_are_extraction_seeds(tiny_root:
         with np.load(runs / "clods_cache" / s["extra"]["cache"] / "traj_0000.npz") as z:
             got = z["world_pos"].astype(np.float64)
         egt = np.sqrt(((got - truth) ** 2).mean(axis=(1, 2)))  # longhand E-GT per frame
+        _, meshes, sample_truth, _, _ = load_mesh_sample(rdir / f"seed_{seed}" / "extraction_meshes.npz")  # the picture's sample
+        np.testing.assert_allclose(meshes["extracted (stage 2)"], got, atol=1e-6)
+        np.testing.assert_allclose(sample_truth, truth, atol=1e-6)
         assert s["metrics"]["egt_avg"] == pytest.approx(egt[1:].mean(), rel=1e-6)
         assert s["metrics"]["egt_end"] == pytest.approx(egt[-1], rel=1e-6)
         curves = json.loads((rdir / f"seed_{seed}" / "result.json").read_text())["curves"]

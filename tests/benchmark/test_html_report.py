@@ -47,6 +47,8 @@ def test_report_embeds_tables_plots_grids_and_videos(tiny_root: Path, tmp_path: 
     assert (nvs_dir / "seed_0" / GRID_FILE).read_bytes() in pngs
     assert (out / "error_vs_time_flag_ci.png").read_bytes() in pngs and (out / "rollout_rmse_flag_ci.png").read_bytes() in pngs
     assert _embedded(page, "image/gif") == [(cdg_dirs[0] / "seed_0" / "rollout.gif").read_bytes()]
+    pictures = sorted((out / "meshes").glob("*rollout_meshes.png"))  # one mesh picture per CDG run (truth beside rollout)
+    assert len(pictures) == 2 and all(p.read_bytes() in pngs for p in pictures) and "per-node error as colour" in page
     # through the CLI, with an NVS-only runs folder (no CDG plots to make)
     nvs_only = tmp_path / "nvs_only"
     shutil.copytree(nvs_dir, nvs_only / nvs_dir.relative_to(runs))

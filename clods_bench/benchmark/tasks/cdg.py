@@ -11,6 +11,7 @@ from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.fit_cache import fit_cost_seconds
 from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
+from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.benchmark.monitors import MeshMonitor, flat_rest_pos, scene_rest_mesh
 from clods_bench.datasets.store import DatasetStore
@@ -23,6 +24,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     store = DatasetStore.open(cfg.data.dataset_dir())
     store.require_meshes("task cdg")
     clods_extra: dict[str, object] = {}
+    extraction = None  # (extracted meshes, their truth) of a row learned from video
     t0 = time.perf_counter()
     if cfg.renderer:  # learned from video: the CloDS pipeline (stages 1-3) replaces mesh supervision
         from clods_bench.benchmark.clods.pipeline import error_accumulation, run_pipeline, video_train_ids
@@ -30,6 +32,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
         train_ids = video_train_ids(ctx)
         clods = run_pipeline(ctx, train_ids)
         sim, fit_stats = clods.simulator, clods.stats
+        extraction = (clods.meshes, clods.truth)
         fit_wall = time.perf_counter() - t0
         clods_extra = {
             "egt_curve": clods.egt_curve,
@@ -49,6 +52,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     strains: list[float] = []  # per rollout: largest edge strain |l/l0 - 1| over its frames (RMSE alone hides a tear)
     scene = ctx.registry.get("scene", cfg.data.scene)
     total = sum(len(v) for v in groups.values())
+    sample: tuple[str, int, object, np.ndarray] | None = None
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"rollouts ({cfg.sim})", total=total)
         for group, ids in groups.items():
@@ -63,9 +67,12 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
                 if step is not None:
                     diverged[f"{group}/{i}"] = step
                 curves[group].append(rmse_per_step(pred, traj.world_pos[: splits.num_steps]))
+                if sample is None or (group == "unviewed" and sample[0] != "unviewed"):  # picture: an unseen trajectory if any
+                    sample = (group, i, traj, pred)
                 strains.append(_max_strain(scene, traj.cells, traj.mesh_pos, pred))
                 bar.advance(job)
 
+    _save_pictures(ctx, sample, splits.interp_steps, extraction)
     metrics = cdg_columns(curves, splits.interp_steps, splits.num_steps)
     metrics["max_strain"] = float(max(strains)) if strains else float("nan")
     timings = {
@@ -87,3 +94,17 @@ def _max_strain(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, pred: np
     per_frame = MeshMonitor.from_rest(cells, rest, 1.0, 1.0).max_strain(pred)
     finite = per_frame[np.isfinite(per_frame)]
     return float(finite.max()) if finite.size else float("inf")
+
+
+def _save_pictures(ctx: TaskContext, sample: tuple | None, interp_steps: int, extraction: tuple[list, list] | None) -> None:
+    """Mesh samples for the report's pictures: the rollout of one (unviewed if any) trajectory against its truth and,
+    for a row learned from video, the meshes stage 2 extracted from its first training video against their truth."""
+    label = ctx.config.label or ctx.config.sim or "prediction"
+    if sample is not None:
+        group, i, traj, pred = sample
+        save_mesh_sample(ctx.work_dir / "rollout_meshes.npz", traj.cells, {label: pred}, truth=traj.world_pos[: len(pred)],
+                         marks=[interp_steps], title=f"{label}: rollout of {group} trajectory {i}, seed {ctx.seed}")  # fmt: skip
+    if extraction and extraction[0]:
+        meshes, truth = extraction
+        save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", truth[0].cells, {"extracted (stage 2)": meshes[0].world_pos},
+                         truth=truth[0].world_pos, title=f"{label}: meshes extracted from training video 0, seed {ctx.seed}")  # fmt: skip

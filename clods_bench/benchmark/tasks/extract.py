@@ -17,6 +17,7 @@ import numpy as np
 
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.errors import ClodsError
 
 WHERE = "task_config.extract"
@@ -82,6 +83,9 @@ def run_extract(ctx: TaskContext) -> TaskResult:
         "stage2_iterations_per_frame": float(s["stage2_iterations_per_frame"]),
     }
     curves = {"egt": egt.mean(axis=0).tolist()}
+    label = ctx.config.label or "extracted"
+    save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", ext.truth[0].cells, {"extracted (stage 2)": ext.meshes[0].world_pos},
+                     truth=ext.truth[0].world_pos, title=f"{label}: meshes extracted from video {ids[0]}, seed {ctx.seed}")  # fmt: skip
     extra = {"trajectories": list(ids), "egt_per_trajectory": {str(i): float(c[1:].mean()) for i, c in zip(ids, egt)}, "cache": ext.key}
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
 
