@@ -17,6 +17,7 @@ from clods_bench.benchmark.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
 from clods_bench.benchmark.image_metrics import LpipsMetric, image_scores
 from clods_bench.benchmark.interfaces import FitContext, VideoPredictor
+from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 
@@ -121,6 +122,9 @@ def train_simulator(
             result = pipeline.run_pipeline(ctx, train_ids)
             sim, stats = result.simulator, result.stats
             extracted = {int(i): m.world_pos for i, m in zip(train_ids, result.meshes)}
+            if result.meshes and result.truth:  # the report's picture of what stage 2 recovered
+                save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", result.truth[0].cells, {"extracted (stage 2)": result.meshes[0].world_pos},
+                                 truth=result.truth[0].world_pos, title=f"meshes extracted from training video {train_ids[0]}, seed {ctx.seed}")  # fmt: skip
         else:
             sim, stats = pipeline.train_from_video(ctx, train_ids)
     else:

@@ -14,6 +14,7 @@ import pytest
 from clods_bench.benchmark.descriptors import PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.image_metrics import psnr, ssim
+from clods_bench.benchmark.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import Registry, default_registry, make_plugin_manager
 from clods_bench.benchmark.runner import run_task
@@ -169,6 +170,10 @@ def test_start_from_the_last_observed_frames(tiny_root: Path, tmp_path: Path) ->
         with np.load(ext_file) as z:
             recovered = z["world_pos"]
         traj, video = store.load_trajectory(i), _unit(store.load_frames(i)[:, 2])
+        if i == 0:  # the report's picture sample: training video 0's recovered meshes beside their truth
+            _, meshes, truth, _, _ = load_mesh_sample(rdir / "seed_0" / "extraction_meshes.npz")
+            np.testing.assert_allclose(meshes["extracted (stage 2)"], recovered, atol=1e-6)
+            np.testing.assert_allclose(truth, traj.world_pos[: interp + 1], atol=1e-6)
         for t in range(1, 12):
             mesh = recovered[min(t, interp)].copy()
             mesh[traj.node_type != NORMAL] = traj.world_pos[t][traj.node_type != NORMAL]  # handles follow the truth
