@@ -40,7 +40,8 @@ def lip_spec(config: LipConfig) -> GraphSpec:
 def check_connected(topo: Topology, pos: np.ndarray, spec: GraphSpec, where: str) -> None:
     """Raise ClodsError naming the radius factor when no node of `pos` (V,3) has a neighbour within the radius:
     such a particle graph has no edges, and every node would fall as if alone."""
-    assert spec.radius_factor is not None
+    if spec.radius_factor is None:
+        raise ClodsError("the graph spec has no radius (a mesh graph)", where="lip check_connected", hint="use lip_spec(config)")
     radius = spec.radius_factor * topo.rest_spacing
     x = torch.as_tensor(np.asarray(pos, dtype=np.float32))
     senders, _ = radius_edges(x, topo.sample, radius, spec.max_neighbours)
