@@ -6,6 +6,7 @@ from clods_bench.benchmark.descriptors import PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.plugins.simulators.baselines import ConstantVelocity, Frozen
 from clods_bench.plugins.simulators.learned.config import MgnConfig
+from clods_bench.plugins.simulators.learned.lip_config import LipConfig
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig, DhmpConfig, HcmtConfig
 from clods_bench.plugins.simulators.physics import PhysicsConfig, PhysicsSimulator
 
@@ -32,6 +33,12 @@ def _build_dhmp(cfg: DhmpConfig, ctx: object) -> object:
     from clods_bench.plugins.simulators.learned.dhmp import build_dhmp  # torch is imported only when a model is built
 
     return build_dhmp(cfg, ctx)
+
+
+def _build_lip(cfg: LipConfig, ctx: object) -> object:
+    from clods_bench.plugins.simulators.learned.lip import build_lip  # torch is imported only when a model is built
+
+    return build_lip(cfg, ctx)
 
 
 @hookimpl
@@ -79,6 +86,13 @@ def clods_bench_simulators() -> list[PluginSpec]:
             description="DHMP-style model: anisotropic message-passing U-Net over levels whose nodes are selected per input (Gumbel-softmax).",
             build=_build_dhmp,
             config_cls=DhmpConfig,
+            learned=True,
+        ),
+        PluginSpec(
+            name="lip",
+            description="LIP-style particle model: GNS encode-process-decode over a radius graph rebuilt every step, no mesh edges.",
+            build=_build_lip,
+            config_cls=LipConfig,
             learned=True,
         ),
     ]

@@ -5,6 +5,9 @@ x_t - x_{t-1} and a one-hot node type of width NODE_TYPE_SIZE; mesh edges come f
 triangles, made unique and bidirectional; edge features are sender minus receiver in world
 space (3) and its norm, then in mesh space (2) and its norm. World (contact) edges, as in
 MGN's obstacle domains, are built only when the scene has obstacles (`GraphSpec`).
+A particle simulator's spec (`radius_factor` set) replaces all of these by one 'radius' edge set
+rebuilt from the world positions at every step (`radius_graph`): relative position over the
+radius and its norm, with no mesh edge and no mesh-space feature.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 import torch
 
 from clods_bench.datasets.types import NODE_TYPE_SIZE, NORMAL, OBSTACLE, edges_from_cells
+from clods_bench.plugins.simulators.learned.radius_graph import radius_edges, rest_spacing
 
 VELOCITY_SIZE = 3
 NODE_FEATURE_SIZE = VELOCITY_SIZE + NODE_TYPE_SIZE  # velocity + one-hot node type
@@ -25,15 +29,21 @@ WORLD_REL_SIZE = 3 + 1  # relative world position + its norm
 MESH_REL_SIZE = 2 + 1  # relative mesh position + its norm
 MESH_EDGE_FEATURE_SIZE = WORLD_REL_SIZE + MESH_REL_SIZE
 WORLD_EDGE_FEATURE_SIZE = WORLD_REL_SIZE
+RADIUS_EDGE_FEATURE_SIZE = WORLD_REL_SIZE  # relative world position / radius + its norm
 OUTPUT_SIZE = 3  # acceleration
 
 
 @dataclass(frozen=True)
 class GraphSpec:
-    """Which edge sets the graph has: mesh edges always, world (contact) edges only with obstacles."""
+    """Which edge sets the graph has: mesh edges always, world (contact) edges only with obstacles; or, with
+    `radius_factor` set, only a radius graph over world positions (a particle simulator)."""
 
     world_edges: bool = False
     world_radius: float = 0.05
+    radius_factor: float | None = None
+    """Particle graph: connectivity radius = this times the mesh's rest spacing (`Topology.rest_spacing`)."""
+    max_neighbours: int | None = None
+    """Particle graph: each node receives from at most this many nearest nodes within the radius (None: all)."""
 
     @classmethod
     def for_scene(cls, scene: object, world_radius: float) -> "GraphSpec":
@@ -43,6 +53,8 @@ class GraphSpec:
     @property
     def edge_widths(self) -> dict[str, int]:
         """Feature width of each edge set built, by name."""
+        if self.radius_factor is not None:
+            return {"radius": RADIUS_EDGE_FEATURE_SIZE}
         widths = {"mesh": MESH_EDGE_FEATURE_SIZE}
         if self.world_edges:
             widths["world"] = WORLD_EDGE_FEATURE_SIZE
@@ -68,6 +80,8 @@ class Topology:
     normal: torch.Tensor  # (V,) bool: simulated nodes
     obstacle: torch.Tensor  # (V,) bool
     mesh_pos: torch.Tensor  # (V, 2) float32 rest-space positions (for processors that build coarse edges)
+    sample: torch.Tensor  # (V,) int64 index of the mesh a node belongs to in a batched union (all 0 for one mesh)
+    rest_spacing: torch.Tensor  # (V,) float32 median nearest-neighbour distance of the node's mesh in rest space
 
     @property
     def num_nodes(self) -> int:
@@ -98,7 +112,10 @@ def build_topology(cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarra
     mp = torch.as_tensor(np.asarray(mesh_pos, dtype=np.float32), device=device)
     nt = torch.as_tensor(np.asarray(node_type, dtype=np.int64), device=device)
     onehot = torch.nn.functional.one_hot(nt, NODE_TYPE_SIZE).to(torch.float32)
-    return Topology(s, r, _rel_with_norm(mp[s] - mp[r]), onehot, nt == NORMAL, nt == OBSTACLE, mp)
+    v = int(nt.shape[0])
+    sample = torch.zeros(v, dtype=torch.int64, device=device)
+    spacing = torch.full((v,), rest_spacing(np.asarray(mesh_pos)), dtype=torch.float32, device=device)
+    return Topology(s, r, _rel_with_norm(mp[s] - mp[r]), onehot, nt == NORMAL, nt == OBSTACLE, mp, sample, spacing)
 
 
 class TopologyCache:
@@ -151,6 +168,7 @@ class TopologyCache:
 def concat_topologies(topos: list[Topology]) -> Topology:
     """Disjoint union of several topologies: one graph holding several samples."""
     offsets = np.cumsum([0] + [t.num_nodes for t in topos[:-1]])
+    sample_offsets = np.cumsum([0] + [int(t.sample.max()) + 1 if t.num_nodes else 0 for t in topos[:-1]])
     cat = torch.cat
     return Topology(
         cat([t.senders + int(o) for t, o in zip(topos, offsets)]),
@@ -160,6 +178,8 @@ def concat_topologies(topos: list[Topology]) -> Topology:
         cat([t.normal for t in topos]),
         cat([t.obstacle for t in topos]),
         cat([t.mesh_pos for t in topos]),
+        cat([t.sample + int(o) for t, o in zip(topos, sample_offsets)]),
+        cat([t.rest_spacing for t in topos]),
     )
 
 
@@ -181,6 +201,10 @@ def build_features(
 ) -> tuple[torch.Tensor, dict[str, EdgeSet]]:
     """Raw (unnormalised) node features (V, NODE_FEATURE_SIZE) and edge sets for positions x_t, x_{t-1}."""
     nodes = torch.cat([pos - prev, topo.node_type_onehot], dim=-1)
+    if spec.radius_factor is not None:
+        radius = spec.radius_factor * topo.rest_spacing
+        rs, rr = radius_edges(pos, topo.sample, radius, spec.max_neighbours)
+        return nodes, {"radius": EdgeSet(_rel_with_norm((pos[rs] - pos[rr]) / radius[rr].unsqueeze(1)), rs, rr)}
     s, r = topo.senders, topo.receivers
     mesh = torch.cat([_rel_with_norm(pos[s] - pos[r]), topo.mesh_rel], dim=-1)
     sets = {"mesh": EdgeSet(mesh, s, r)}

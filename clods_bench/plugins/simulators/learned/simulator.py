@@ -40,13 +40,16 @@ DT_RTOL = 1e-6
 class LearnedSimulator:
     """A learned cloth simulator: shared encoder/decoder and trainer around the processor `processor_factory` builds."""
 
-    def __init__(self, name: str, config: LearnedConfig, scene: object, processor_factory: ProcessorFactory) -> None:
+    def __init__(
+        self, name: str, config: LearnedConfig, scene: object, processor_factory: ProcessorFactory, spec: GraphSpec | None = None
+    ) -> None:
+        """`spec`: the graph to build (default: the mesh graph the scene needs, `GraphSpec.for_scene`)."""
         config.validate(f"sim_config.{name}")
         self.name = name
         self.config = config
         self.scene_name = str(getattr(scene, "name", "?"))
         self.scene_has_handles = bool(getattr(scene, "has_handles", True))
-        self.spec = GraphSpec.for_scene(scene, config.world_radius)
+        self.spec = spec if spec is not None else GraphSpec.for_scene(scene, config.world_radius)
         self.processor_factory = processor_factory
         self.cache = TopologyCache()
         self.model: LearnedModel | None = None
