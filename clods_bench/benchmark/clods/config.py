@@ -12,7 +12,7 @@ from clods_bench.errors import ClodsError
 
 Variant = Literal["scratch", "finetune"]
 InitNoise = Literal["none", "gaussian", "translation", "scaling"]
-StartGuess = Literal["previous", "velocity"]
+StartGuess = Literal["previous", "velocity", "simulator"]
 WHERE = "task_config.clods"
 
 
@@ -49,7 +49,9 @@ class ClodsConfig:
     lr_final_factor: float = 0.2
     """See `learning_rate`."""
     start: StartGuess = "velocity"
-    """Start of frame t+1's optimisation: the previous mesh ('previous', Algorithm S1) or extrapolated by its velocity."""
+    """Start of frame t+1's optimisation: the previous mesh ('previous', Algorithm S1), extrapolated by its velocity, or
+    ('simulator', the Cloth-Splatting filter's predict step) the pretrained simulator's step from the two previous meshes
+    (needs variant=finetune, whose first-half mesh pretraining gives that simulator)."""
     num_cameras: int | None = None
     """Training cameras used by stages 1-2 (the first ones of the training rig); None: all (ablation 'number of cameras')."""
     extraction_seed: int | None = None
@@ -84,6 +86,11 @@ class ClodsConfig:
             raise ClodsError(f"must be a non-empty combination of x, y, z, got '{self.translation_axes}'", where=f"{WHERE}.translation_axes")
         if self.num_cameras is not None and self.num_cameras < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_cameras}", where=f"{WHERE}.num_cameras")
+        if self.start == "simulator" and self.variant != "finetune":
+            raise ClodsError(
+                f"start=simulator predicts each frame with the pretrained simulator, which only variant=finetune trains (variant is '{self.variant}')",
+                where=f"{WHERE}.start", hint="add task_config.clods.variant=finetune, or use start=velocity",
+            )  # fmt: skip
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads}", where=f"{WHERE}.num_threads")
 

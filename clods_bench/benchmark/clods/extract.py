@@ -1,6 +1,7 @@
 """Stage 2 (paper eq. 6-7, Algorithm S1): recover the mesh of every frame from the video through the renderer.
 
-For t = 0, 1, ...: start from the mesh of frame t (or extrapolated by its velocity), optimise vertex
+For t = 0, 1, ...: start from the mesh of frame t (or extrapolated by its velocity, or a pretrained
+simulator's one-step prediction: the predict step of Cloth-Splatting's filter), optimise vertex
 offsets with Adam so that the render on the training cameras matches frame t+1 under
 L1 + gamma * L_edge, edge lengths held to the initial mesh's. Non-NORMAL (handle) nodes stay at
 their initial positions. A frame stops at the iteration cap or when the loss has not improved by
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,9 +84,18 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
     return FrameFit(best_x.numpy().astype(np.float32), it, best_seen)
 
 
-def start_guess(done: np.ndarray, cfg: ClodsConfig, free: np.ndarray) -> np.ndarray:
-    """Starting mesh of the next frame from the meshes `done` (k,V,3) so far: the last one, or velocity-extrapolated."""
+Predict = Callable[[np.ndarray], np.ndarray]  # meshes so far (k>=2,V,3) -> the next one (V,3)
+
+
+def start_guess(done: np.ndarray, cfg: ClodsConfig, free: np.ndarray, predict: Predict | None = None) -> np.ndarray:
+    """Starting mesh of the next frame from the meshes `done` (k,V,3) so far: the last one, velocity-extrapolated, or
+    (start=simulator) `predict(done)`; with one mesh only (frame 1) the last one for 'previous' and 'simulator'."""
     last = done[-1]
+    if cfg.start == "simulator":
+        if predict is None:
+            raise ClodsError("start=simulator needs the pretrained simulator's predict step", where="task_config.clods.start",
+                             hint="it runs inside the CloDS pipeline with task_config.clods.variant=finetune")  # fmt: skip
+        return predict(done) if done.shape[0] >= 2 else last.copy()
     if cfg.start == "velocity" and done.shape[0] >= 2:
         guess = last.copy()
         guess[free] = 2.0 * last[free] - done[-2][free]
@@ -104,8 +114,10 @@ def extract_trajectory(
     cache: ExtractionCache | None = None,
     index: int = 0,
     bar: Progress | None = None,
+    predict: Predict | None = None,
 ) -> Extracted:
-    """Meshes of frames 0..T-1 of `video` (T,N,H,W,3) uint8 seen by `cameras`, frame 0 being `initial` (V,3).
+    """Meshes of frames 0..T-1 of `video` (T,N,H,W,3) uint8 seen by `cameras`, frame 0 being `initial` (V,3);
+    `predict` is the start=simulator predict step (see `start_guess`).
 
     With a cache, a finished trajectory is read back, and a partial one resumes after its last frame;
     the partial file is rewritten after every frame.
@@ -121,8 +133,8 @@ def extract_trajectory(
     with torch_threads(cfg.num_threads):
         for t in range(ext.num_frames, video.shape[0]):
             target = torch.from_numpy(np.asarray(video[t], dtype=np.float32) / 255.0)
-            start = torch.from_numpy(start_guess(ext.world_pos, cfg, free))
-            t0 = time.perf_counter()
+            t0 = time.perf_counter()  # the frame's cost includes the predict step (start=simulator)
+            start = torch.from_numpy(start_guess(ext.world_pos, cfg, free, predict))
             fit = fit_frame(renderer, cameras, target, start, prior, cfg)
             ext = ext.append(fit.verts, fit.iterations, fit.loss, time.perf_counter() - t0)
             if cache is not None:

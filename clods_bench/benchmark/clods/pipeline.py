@@ -10,6 +10,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -20,7 +21,8 @@ from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory
 from clods_bench.benchmark.clods.noise import initial_mesh
 from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
-from clods_bench.benchmark.clods.stage3 import train_simulator
+from clods_bench.benchmark.clods.predict import OneStepPredictor
+from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, train_simulator
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.interfaces import Simulator
 from clods_bench.benchmark.metrics import rmse_per_step
@@ -28,7 +30,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
-__all__ = ["Extraction", "PipelineResult", "error_accumulation", "extract_meshes", "fit_stage1", "run_pipeline", "train_from_video", "video_train_ids"]
+__all__ = ["Extraction", "PipelineResult", "error_accumulation", "extract_meshes", "extraction_identity", "fit_stage1", "pretrain_ids", "run_pipeline", "train_from_video", "video_train_ids"]
 
 
 @dataclass
@@ -56,6 +58,13 @@ def video_train_ids(ctx: TaskContext) -> list[int]:
     return list(splits.train if cfg.train_subset == "all" else splits.first_half)
 
 
+def pretrain_ids(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
+    """Trajectories whose ground-truth meshes pretrain the simulator: the first half for variant=finetune, else none."""
+    from clods_bench.benchmark.builders import split_spec
+
+    return list(split_spec(ctx).first_half) if opts.variant == "finetune" else []
+
+
 def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
     """Training camera indices used by stages 1-2: all, or the first `num_cameras` of them (neighbours on the rig:
     two cameras spread to opposite sides would see the cloth along one line, with no baseline to triangulate)."""
@@ -80,8 +89,24 @@ class Extraction:
     key: str  # extraction cache key (stage 3 is keyed by it)
 
 
-def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
-    """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, training cameras only), cached and resumable."""
+def extraction_identity(
+    stage1_key: str, opts: ClodsConfig, data: dict[str, Any], frames: int, views: Sequence[int], predictor: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """What decides a row's extracted meshes (its cache key is the digest): the stage-1 fit, the stage-2 options, the
+    data, frames and views, and with start=simulator the pretrained fit's identity (`predictor`, required then)."""
+    identity: dict[str, Any] = {"stage1": stage1_key, "clods": opts.extraction_identity(), "data": data, "frames": frames, "views": list(views)}
+    if opts.start == "simulator":  # a different predictor gives different meshes; the other starts keep their key
+        if predictor is None:
+            raise ClodsError("start=simulator needs the pretrained fit's identity in the cache key", where="task_config.clods.start")
+        identity["predictor"] = predictor
+    return identity
+
+
+def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretrained | None = None) -> Extraction:
+    """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, training cameras only), cached and resumable.
+
+    With start=simulator each frame starts from `pretrained`'s one-step prediction (pretrained here when not given);
+    the cache key then includes that fit's identity, and the statistics its pretraining cost."""
     from clods_bench.benchmark.builders import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
@@ -99,16 +124,22 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
     initial = np.stack([initial_mesh(g.world_pos[0], opts, seed, i) for g, i in zip(gts, train_ids)])
 
     renderer, stats, stage1_key = fit_stage1_keyed(ctx, initial, gts[0].cells, gts[0].mesh_pos, np.stack([v[0] for v in videos]), cams)
-    identity = {"stage1": stage1_key, "clods": opts.extraction_identity(), "data": cfg.data.identity(), "frames": frames, "views": views}
+    use_sim = opts.start == "simulator"
+    if use_sim and pretrained is None:
+        pretrained = pretrain_simulator(ctx, pretrain_ids(ctx, opts))
+    if use_sim and pretrained is not None:
+        stats.update(pretrained.stats)
+    identity = extraction_identity(stage1_key, opts, cfg.data.identity(), frames, views, pretrained.identity if use_sim and pretrained else None)
+    predictors = [OneStepPredictor(pretrained.simulator, g.cells, g.mesh_pos, g.node_type, g.dt, str(cfg.sim)) if use_sim and pretrained else None for g in gts]
     cache = ExtractionCache(cache_root(ctx, opts), digest(identity), identity)
 
     t0, extracted, cached = time.perf_counter(), [], 0
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("{task.fields[info]}"))
     with Progress(*columns, transient=True, disable=not cfg.progress) as bar:
-        for g, video, i, init in zip(gts, videos, train_ids, initial):
+        for g, video, i, init, predict in zip(gts, videos, train_ids, initial, predictors):
             with file_lock(cache.path(i).with_suffix(".lock")):  # a parallel job extracting it: wait, then read it
                 cached += cache.load(i) is not None
-                extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar))
+                extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar, predict))
     stats["stage2_wall_seconds"] = time.perf_counter() - t0
 
     seconds = np.concatenate([e.seconds[1:] for e in extracted])
@@ -133,13 +164,14 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int]) -> Extraction:
 
 def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     """Stages 1-3 on the videos of `train_ids` (frames 0..interp_steps, training cameras only)."""
-    from clods_bench.benchmark.builders import split_spec
-
-    opts, splits = clods_config(ctx.config), split_spec(ctx)
-    ext = extract_meshes(ctx, train_ids)
+    opts = clods_config(ctx.config)
+    ids = pretrain_ids(ctx, opts)
+    pretrained = pretrain_simulator(ctx, ids) if opts.start == "simulator" else None  # stage 2 predicts with it
+    ext = extract_meshes(ctx, train_ids, pretrained)
     stats = dict(ext.stats)
-    pretrain_ids = list(splits.first_half) if opts.variant == "finetune" else []
-    sim, sim_stats = train_simulator(ctx, opts, ext.meshes, ext.key, pretrain_ids)
+    if ids and pretrained is None:  # the other starts pretrain after stage 2, as they always have
+        pretrained = pretrain_simulator(ctx, ids)
+    sim, sim_stats = train_simulator(ctx, opts, ext.meshes, ext.key, pretrained)
     stats.update(sim_stats)
     parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")
     stats["cost_seconds"] = float(sum(v for v in (stats.get(k, 0.0) for k in parts) if math.isfinite(v)))  # a cache without its cost counts 0

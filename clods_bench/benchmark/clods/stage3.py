@@ -3,7 +3,8 @@
 Learned simulators get `task_config.clods.sim_overrides` laid over their `sim_config` (by default
 the 8-step rollout loss). The 'finetune' variant first trains the simulator with its own config on
 ground-truth meshes (MGN*: the same fit as the MGN* row's, shared through the fit cache) and starts
-stage 3 from those weights. The stage-3 fit is keyed by the extraction it learns from, so the CDG
+stage 3 from those weights (with start=simulator stage 2 predicts each frame with it, so it is trained
+first). The stage-3 fit is keyed by the extraction it learns from, so the CDG
 and DVC tasks and every re-run of the same row train it once.
 """
 
@@ -13,6 +14,7 @@ import copy
 import dataclasses
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from clods_bench.atomic import file_lock
@@ -49,33 +51,50 @@ def warm_start(sim: Any, pretrained: Any, name: str) -> None:
     )  # fmt: skip
 
 
+@dataclass
+class Pretrained:
+    """The 'finetune' variant's simulator trained on ground-truth meshes (MGN*), its fit identity and statistics."""
+
+    simulator: Simulator
+    identity: dict[str, Any]  # `sim_fit_identity` of the mesh fit (its fit-cache key)
+    stats: dict[str, float]  # pretrain_seconds, pretrain_cost_seconds, pretrain/<fit statistic>
+
+
+def pretrain_simulator(ctx: TaskContext, pretrain_ids: Sequence[int]) -> Pretrained:
+    """Train the run's simulator, with its own config, on the ground-truth meshes of `pretrain_ids` (the MGN* fit,
+    shared with that row through the fit cache); stage 3 starts from it and start=simulator predicts with it."""
+    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
+    from clods_bench.datasets.store import DatasetStore
+
+    pre = build_simulator(ctx)
+    ids, pre_stats, wall = fit_on_meshes(ctx, pre, DatasetStore.open(ctx.config.data.dataset_dir()), list(pretrain_ids))
+    stats = {"pretrain_seconds": wall, "pretrain_cost_seconds": fit_cost_seconds(wall, pre_stats)}
+    stats.update({f"pretrain/{k}": float(v) for k, v in pre_stats.items()})
+    identity = sim_fit_identity(ctx, ids, split_spec(ctx).interp_steps + 1, supervision="mesh")
+    return Pretrained(pre, identity, stats)
+
+
 def train_simulator(
     ctx: TaskContext,
     opts: ClodsConfig,
     meshes: Sequence[Trajectory],
     extraction_key: str,
-    pretrain_ids: Sequence[int] = (),
+    pretrained: Pretrained | None = None,
 ) -> tuple[Simulator, dict[str, float]]:
-    """Fit the run's simulator on the extracted `meshes` (identified by `extraction_key`), after pre-training on the
-    ground-truth meshes of `pretrain_ids` when given; return it and statistics (`*_cost_seconds`: training time,
-    cached fits at their recorded cost). Both fits run in content-addressed work directories (`fit_cache`)."""
-    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes
+    """Fit the run's simulator on the extracted `meshes` (identified by `extraction_key`), starting from the
+    `pretrained` weights when given; return it and statistics (`*_cost_seconds`: training time, cached fits at
+    their recorded cost). The fit runs in a content-addressed work directory (`fit_cache`)."""
+    from clods_bench.benchmark.builders import build_simulator
 
     cfg = ctx.config
     stats: dict[str, float] = {}
     s3ctx = stage3_context(ctx, opts)
     sim = build_simulator(s3ctx)
     pre_identity = None
-    if pretrain_ids:
-        from clods_bench.datasets.store import DatasetStore
-
-        pre = build_simulator(ctx)
-        ids, pre_stats, wall = fit_on_meshes(ctx, pre, DatasetStore.open(cfg.data.dataset_dir()), list(pretrain_ids))
-        stats["pretrain_seconds"] = wall
-        stats["pretrain_cost_seconds"] = fit_cost_seconds(wall, pre_stats)
-        stats.update({f"pretrain/{k}": float(v) for k, v in pre_stats.items()})
-        warm_start(sim, pre, str(cfg.sim))
-        pre_identity = sim_fit_identity(ctx, ids, meshes[0].num_steps if meshes else 0, supervision="mesh")
+    if pretrained is not None:
+        stats.update(pretrained.stats)
+        warm_start(sim, pretrained.simulator, str(cfg.sim))
+        pre_identity = pretrained.identity
     frames = max((m.num_steps for m in meshes), default=0)
     identity = sim_fit_identity(
         ctx, list(range(len(meshes))), frames, sim_config=s3ctx.config.sim_config.get(str(cfg.sim), {}),
