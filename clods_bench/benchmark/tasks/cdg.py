@@ -84,7 +84,14 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     }
     timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
     mean_curves = {g: np.mean(np.stack(c), axis=0).tolist() for g, c in curves.items() if c}
-    scored_info = {"scene": scored.scene, "dataset": eval_store.root.name, "num_nodes": sorted(num_nodes), **{g: list(v) for g, v in groups.items()}}
+    scored_info = {
+        "scene": scored.scene,
+        "dataset": eval_store.root.name,
+        "num_nodes": sorted(num_nodes),
+        "num_steps": splits.num_steps,
+        "interp_steps": splits.interp_steps,
+        **{g: list(v) for g, v in groups.items()},
+    }
     extra = {"diverged": diverged, "train_ids": list(train_ids), "scored_data": scored_info, **clods_extra}
     return TaskResult(metrics=metrics, timings=timings, curves=mean_curves, extra=extra)
 
