@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from clods_bench.atomic import file_lock
+from clods_bench.benchmark.config import DataConfig
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.fit_cache import fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.interfaces import FitContext, Renderer, Simulator
@@ -21,7 +22,11 @@ from clods_bench.errors import ClodsError
 
 def split_spec(ctx: TaskContext) -> SplitSpec:
     """The paper's splits scaled to this run's data config."""
-    d = ctx.config.data
+    return data_splits(ctx.config.data)
+
+
+def data_splits(d: DataConfig) -> SplitSpec:
+    """The paper's splits scaled to a data config (the run's, or another dataset it is scored on)."""
     return SplitSpec(
         num_train=d.num_train,
         num_test=d.num_test,
@@ -32,12 +37,13 @@ def split_spec(ctx: TaskContext) -> SplitSpec:
     )
 
 
-def build_simulator(ctx: TaskContext) -> Simulator:
-    """Build the configured simulator plugin for this seed."""
+def build_simulator(ctx: TaskContext, scene_name: str | None = None) -> Simulator:
+    """Build the configured simulator plugin for this seed, for the run's scene or for `scene_name` (a simulator with
+    nothing to learn, e.g. the physics solver, rolled out on another scene than `data.scene` must know that scene)."""
     cfg = ctx.config
     spec = ctx.registry.get("simulator", cfg.sim)
     sim_cfg = spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
-    scene = ctx.registry.get("scene", cfg.data.scene)
+    scene = ctx.registry.get("scene", scene_name or cfg.data.scene)
     sim = spec.build(sim_cfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
     if not isinstance(sim, Simulator):
         raise ClodsError("plugin did not return a Simulator (needs fit() and rollout())", where=f"simulator '{cfg.sim}'")

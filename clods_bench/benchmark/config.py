@@ -227,6 +227,33 @@ def resolve_dataset_path(d: DataConfig) -> DataConfig:
     return dataclasses.replace(d, path=str(root.resolve()), **{k: int(stored[k]) for k in PATH_FIELDS})
 
 
+def data_with_overrides(d: DataConfig, overrides: Any, where: str) -> DataConfig:
+    """`d` with the fields in `overrides` replaced, typed like the data section: another dataset of the same run.
+
+    `root` cannot be replaced (every dataset of a run lives under `data.root`); `path` applies only when named
+    (otherwise the result is the generated dataset the other fields name), and then supplies the split sizes.
+    Errors name `<where>.<field>`.
+    """
+    if not isinstance(overrides, dict):
+        raise ClodsError(f"must be a mapping of data options (e.g. {{scene: cylinder}}), got {type(overrides).__name__}", where=where)
+    hints = typing.get_type_hints(DataConfig)
+    names = [f.name for f in dataclasses.fields(DataConfig) if f.name != "root"]
+    changes: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if key == "root":
+            raise ClodsError("the data root cannot differ: every dataset of a run is stored under data.root", where=f"{where}.root")
+        if key not in names:
+            best = closest(str(key), names)
+            raise ClodsError(f"'{key}' is not a data option", where=f"{where}.{key}",
+                             hint=f"did you mean '{best}'?" if best else f"data options: {', '.join(names)}")  # fmt: skip
+        changes[key] = _coerce(hints[key], value, f"{where}.{key}", str(key))
+    changes.setdefault("path", None)
+    try:
+        return resolve_dataset_path(dataclasses.replace(d, **changes))
+    except ClodsError as exc:
+        raise ClodsError(exc.what if exc.where is None else f"{exc.where}: {exc.what}", where=f"{where}.path", hint=exc.hint) from None
+
+
 def parse_override(item: str) -> tuple[str, Any]:
     """'data.num_train=8' -> ('data.num_train', 8); the value is parsed as YAML."""
     if "=" not in item:

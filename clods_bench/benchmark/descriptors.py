@@ -76,6 +76,9 @@ class TaskSpec:
     description: str
     run: Callable[[TaskContext], TaskResult]
     needs: tuple[Literal["sim", "renderer"], ...] = ()
+    datasets: Callable[[Any, Any], list[Any]] | None = None
+    """(RunConfig, Registry) -> the DataConfigs a run reads besides `config.data` (CDG's `eval_data`): the runner
+    generates them before any seed runs; a bad option raises ClodsError naming it. None: only `config.data`."""
 
 
 def spec_fields(cls: type) -> list[dataclasses.Field]:

@@ -9,6 +9,7 @@ Paths in the configs are made absolute before dispatch: Ray workers may start in
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import time
@@ -206,7 +207,7 @@ def run_configs(
     Datasets are generated first, once per distinct data config, their trajectories in parallel through `executor`.
     Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run.
     """
-    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task
+    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task, task_datasets
 
     for name, cfg in configs:
         check_plugins(cfg, registry)
@@ -214,11 +215,12 @@ def run_configs(
     parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     seen: set[Path] = set()
     for name, cfg in configs:
-        ddir = cfg.data.dataset_dir()
-        if ddir not in seen:
-            seen.add(ddir)
-            console.print(f"[dim]dataset {ddir}[/dim]")
-            ensure_complete_dataset(cfg, registry, cfg.progress, executor=executor if parallel else None)
+        for d in [cfg.data, *task_datasets(cfg, registry)]:  # the training data and any other the task scores on
+            ddir = d.dataset_dir()
+            if ddir not in seen:
+                seen.add(ddir)
+                console.print(f"[dim]dataset {ddir}[/dim]")
+                ensure_complete_dataset(dataclasses.replace(cfg, data=d), registry, cfg.progress, executor=executor if parallel else None)
 
     # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
     # runs together instead of two seeds of one run that would wait on each other's shared cached stages.

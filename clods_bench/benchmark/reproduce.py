@@ -239,11 +239,11 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
 
 def write_plan_table(table: PlanTable, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
     """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table, rows in plan order."""
-    from clods_bench.benchmark.tables import to_markdown
+    from clods_bench.benchmark.tables import scored_scenes, to_markdown
 
     display, numeric, note = table_frames(table.task, records)
     seeds = "/".join(str(n) for n in sorted({len(r["seeds"]) for r in records}))
-    scenes = ", ".join(sorted({r["scene"] for r in records}))
+    scenes = ", ".join(sorted(set().union(*(scored_scenes(r) for r in records))))
     caption = f"{table.title} ({scenes}, preset {preset}; mean ± std over {seeds} seeds)" + (f". {note}" if note else "")
     stem = Path(out_dir) / table.id
     markdown = to_markdown(display) if isinstance(display.columns, pd.MultiIndex) else display.to_markdown()

@@ -33,6 +33,7 @@ def check_plugins(cfg: RunConfig, registry: Registry) -> None:
     """
     task = registry.get("task", cfg.task)
     registry.get("scene", cfg.data.scene)
+    task_datasets(cfg, registry)  # e.g. CDG's eval_data: its fields and scene
     if cfg.sim:
         _named_plugin(registry, "simulator", cfg.sim, "sim")
     if "sim" in task.needs:
@@ -52,6 +53,12 @@ def check_plugins(cfg: RunConfig, registry: Registry) -> None:
     if cfg.predictor:
         spec = registry.get("video_predictor", cfg.predictor)
         spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
+
+
+def task_datasets(cfg: RunConfig, registry: Registry) -> list[Any]:
+    """The DataConfigs the run's task reads besides `cfg.data` (its TaskSpec's `datasets`; none for most tasks)."""
+    extra = getattr(registry.get("task", cfg.task), "datasets", None)
+    return list(extra(cfg, registry)) if extra is not None else []
 
 
 def _plain(value: Any) -> Any:
@@ -102,6 +109,8 @@ def run_task(
         from clods_bench.datasets.generate import ensure_dataset as ensure_data
     t0 = time.perf_counter()
     ensure_data(cfg, registry, cfg.progress)
+    for d in task_datasets(cfg, registry):
+        ensure_data(dataclasses.replace(cfg, data=d), registry, cfg.progress)
     run_timings["data_seconds"] = time.perf_counter() - t0
 
     per_seed = {}

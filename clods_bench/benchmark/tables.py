@@ -36,12 +36,25 @@ def _first_divergence(rec: dict[str, Any]) -> int | None:
     return min(steps) if steps else None
 
 
+def _scored_horizon(rec: dict[str, Any]) -> tuple[int, int]:
+    """(last interpolation frame, last frame) of the data a CDG record scored: as its seeds recorded them
+    (`scored_data`, which `task_config.cdg.eval_data` may have changed), else its `data` section's."""
+    data = dict(rec["config"]["data"])
+    for seed in rec.get("per_seed", {}).values():
+        data.update({k: v for k, v in seed.get("extra", {}).get("scored_data", {}).items() if k in ("interp_steps", "num_steps")})
+    return int(data["interp_steps"]), int(data["num_steps"]) - 1
+
+
+def scored_scenes(rec: dict[str, Any]) -> set[str]:
+    """Scenes a record was trained on and scored on (a CDG run with `eval_data` scores another scene)."""
+    return {rec["scene"], *(s["extra"]["scored_data"]["scene"] for s in rec.get("per_seed", {}).values() if "scored_data" in s.get("extra", {}))}
+
+
 def cdg_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(display frame with 'mean ± std' strings and MultiIndex columns, numeric frame for CSV)."""
     display_rows, numeric_rows, index = [], [], []
     for rec in records:
-        data = rec["config"]["data"]
-        interp, last = data["interp_steps"], data["num_steps"] - 1
+        interp, last = _scored_horizon(rec)
         row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
         div = _first_divergence(rec)
         for g in GROUPS:

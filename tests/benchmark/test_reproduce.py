@@ -233,3 +233,19 @@ def test_a_label_may_repeat_across_scenes_and_each_scene_gets_its_row(tmp_path: 
     twice = text + "  - {table: stab, task: stability, label: Const. velocity, sim: frozen, scene: flag-stiff}\n"
     with pytest.raises(ClodsError, match=r"label 'Const. velocity' appears twice in table 'stab' \(flag-stiff\)"):
         build_configs(load_plan(_plan(tmp_path, twice)), "ci", default_registry(), _overrides(tiny_root, tmp_path / "runs"))
+
+
+def test_shape_generalisation_rows_share_table2_and_score_the_cylinder_trained_rows_data() -> None:
+    """A -> B rows: flag -> flag is Table 2's run; flag -> cylinder trains as Table 2 does (same data and simulator
+    options, so the same cached fit) and scores the very dataset the cylinder -> cylinder row trains and scores on."""
+    from clods_bench.benchmark.eval_data import scored_data
+    from clods_bench.benchmark.reproduce import config_identity
+
+    reg = default_registry()
+    rows = {(run.table, run.label): cfg for run, cfg in build_configs(load_plan(default_plan_path()), "ci", reg)}
+    for name, t2 in (("CloDS**", "CloDS**"), ("MGN", "MGN")):
+        same, cross, home = (rows[("shape_generalisation", f"{name} {a} -> {b}")] for a, b in (("flag", "flag"), ("flag", "cylinder"), ("cylinder", "cylinder")))
+        assert config_identity(same) == config_identity(rows[("table2_cdg", t2)])
+        assert cross.data == same.data and cross.sim_config == same.sim_config and cross.task_config.get("clods") == same.task_config.get("clods")
+        assert scored_data(cross, reg) == scored_data(home, reg) == home.data and home.data.scene == "cylinder"
+        assert scored_data(cross, reg).dataset_dir() != cross.data.dataset_dir()

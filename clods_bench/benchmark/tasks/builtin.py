@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from clods_bench.benchmark.descriptors import TaskSpec
+from clods_bench.benchmark.eval_data import extra_datasets
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
@@ -20,6 +21,7 @@ def clods_bench_tasks() -> list[TaskSpec]:
             description="Cloth dynamics grounding: simulator rollout RMSE, viewed/unviewed x interpolation/extrapolation (Table 2).",
             run=run_cdg,
             needs=("sim",),
+            datasets=extra_datasets,
         ),
         TaskSpec(
             name="nvs",

@@ -7,22 +7,27 @@ import time
 import numpy as np
 from rich.progress import Progress
 
-from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
+from clods_bench.benchmark.builders import build_simulator, data_splits, fit_on_meshes
+from clods_bench.benchmark.config import DataConfig
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.eval_data import WHERE, scored_data
 from clods_bench.benchmark.fit_cache import fit_cost_seconds
 from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
 from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.benchmark.monitors import MeshMonitor, flat_rest_pos, scene_rest_mesh
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import ClodsError
 
 
 def run_cdg(ctx: TaskContext) -> TaskResult:
-    """One seed of CDG: fit on the training meshes' interpolation frames, roll out viewed and unviewed trajectories."""
+    """One seed of CDG: fit on the training meshes' interpolation frames, roll out the viewed and unviewed trajectories
+    of the scored dataset (`data`, or `task_config.cdg.eval_data` laid over it)."""
     cfg = ctx.config
-    splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
     store.require_meshes("task cdg")
+    scored = scored_data(cfg, ctx.registry)
+    splits, eval_store = data_splits(scored), _scored_store(store, scored, scored == cfg.data)
     clods_extra: dict[str, object] = {}
     extraction = None  # (extracted meshes, their truth) of a row learned from video
     t0 = time.perf_counter()
@@ -40,8 +45,9 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
             "accumulation": error_accumulation(sim, clods.meshes, clods.truth),  # E-GT, P-GT, P-E on the training videos
         }
         fit_seconds = max(fit_wall, float(fit_stats.get("cost_seconds", 0.0)))
-    else:
-        sim = build_simulator(ctx)
+    else:  # a simulator with nothing to learn (physics) is built for the scene it is rolled out on
+        learned = ctx.registry.get("simulator", cfg.sim).learned
+        sim = build_simulator(ctx, None if learned else scored.scene)
         train_ids, fit_stats, fit_wall = fit_on_meshes(ctx, sim, store)
         fit_seconds = fit_cost_seconds(fit_wall, fit_stats)
 
@@ -50,14 +56,16 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     diverged: dict[str, int] = {}
     infer_seconds, infer_steps = 0.0, 0
     strains: list[float] = []  # per rollout: largest edge strain |l/l0 - 1| over its frames (RMSE alone hides a tear)
-    scene = ctx.registry.get("scene", cfg.data.scene)
+    scene = ctx.registry.get("scene", scored.scene)  # rest shape of the max-strain column: the scored cloth's
+    num_nodes: set[int] = set()
     total = sum(len(v) for v in groups.values())
     sample: tuple[str, int, object, np.ndarray] | None = None
     with Progress(transient=True, disable=not cfg.progress) as bar:
         job = bar.add_task(f"rollouts ({cfg.sim})", total=total)
         for group, ids in groups.items():
             for i in ids:
-                traj = store.load_trajectory(i)
+                traj = eval_store.load_trajectory(i)
+                num_nodes.add(traj.num_nodes)
                 inp = RolloutInput.from_trajectory(traj, splits.num_steps)
                 t1 = time.perf_counter()
                 pred = check_rollout(sim.rollout(inp), inp, cfg.sim or "?")
@@ -83,8 +91,27 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     }
     timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
     mean_curves = {g: np.mean(np.stack(c), axis=0).tolist() for g, c in curves.items() if c}
-    extra = {"diverged": diverged, "train_ids": list(train_ids), **clods_extra}
+    scored_info = {
+        "scene": scored.scene,
+        "dataset": eval_store.root.name,
+        "num_nodes": sorted(num_nodes),
+        "num_steps": splits.num_steps,
+        "interp_steps": splits.interp_steps,
+        **{g: list(v) for g, v in groups.items()},
+    }
+    extra = {"diverged": diverged, "train_ids": list(train_ids), "scored_data": scored_info, **clods_extra}
     return TaskResult(metrics=metrics, timings=timings, curves=mean_curves, extra=extra)
+
+
+def _scored_store(train_store: DatasetStore, scored: DataConfig, same: bool) -> DatasetStore:
+    """The store of the scored dataset (the training store when they are one), checked to hold meshes."""
+    if same:
+        return train_store
+    eval_store = DatasetStore.open(scored.dataset_dir())
+    if not eval_store.has_meshes:
+        raise ClodsError(f"the scored dataset {eval_store.root} has no meshes (imported from video); CDG scores rollouts against meshes",
+                         where=f"{WHERE}.eval_data.path", hint="name a dataset with ground-truth meshes")  # fmt: skip
+    return eval_store
 
 
 def _max_strain(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, pred: np.ndarray) -> float:
