@@ -30,6 +30,7 @@ from clods_bench.datasets.cloths import (
     validate_cloth_mesh,
     validate_handle_motion,
 )
+from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.types import NORMAL, ClothMesh, Trajectory
 from clods_bench.errors import ClodsError, unknown_name
 
@@ -55,12 +56,21 @@ class SceneSpec:
     wind_speed_range: tuple[float, float] = (8.0, 8.0)  # mean wind speed, m/s (one value: the same environment)
     wind_direction_spread: float = 0.0  # azimuth of the wind is +x +- this, rad
     warmup_time: float = 1.0  # seconds simulated before frame 0 is recorded (frame 0 = the cloth already in motion)
+    light: DirectionalLight | None = None
+    """The ground-truth renderer's light and shadows when `has_lighting` (None: the generator's default light, no
+    shadows). Only the ground-truth frames see it; the Gaussian renderers are not given it."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.cloth, Cloth):
             raise ClodsError(
                 f"cloth is a {type(self.cloth).__name__}, expected a clods_bench.datasets.cloths.Cloth", where=f"scene {self.name}"
             )
+        if self.light is not None:
+            if not isinstance(self.light, DirectionalLight):
+                raise ClodsError(f"light is a {type(self.light).__name__}, expected a DirectionalLight", where=f"scene {self.name}")
+            if not self.has_lighting:
+                raise ClodsError("light is set but has_lighting is False", where=f"scene {self.name}", hint="set has_lighting=True")
+            self.light.validate(where=f"scene {self.name}")
 
     @property
     def kind(self) -> str:
