@@ -11,7 +11,8 @@ import pytest
 
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import FlagCloth
-from clods_bench.datasets.generate import scene_identity
+from clods_bench.benchmark.config import DataConfig
+from clods_bench.datasets.generate import scene_identity, scene_raster_settings
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.rasterizer import RasterSettings, render, render_depth, render_views
 from clods_bench.datasets.scenes import SceneSpec, get_scene
@@ -125,6 +126,9 @@ def test_flag_lit_differs_from_flag_only_in_its_light():
     assert lit.pop("light")["shadow_map_size"] > 0 and "light" not in flag
     lit.pop("name"), flag.pop("name")
     assert lit == flag  # same cloth, physics and random ranges: the same trajectories, only the frames are lit
+    d = DataConfig()
+    assert scene_raster_settings(d, get_scene("flag")).light is None
+    assert scene_raster_settings(d, get_scene("flag-lit")).light == get_scene("flag-lit").light
 
 
 def test_bad_lights_are_one_error_naming_the_scene_and_field():
