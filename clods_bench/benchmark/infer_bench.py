@@ -29,8 +29,8 @@ import numpy as np
 from clods_bench.benchmark.descriptors import BuildContext
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.benchmark.sim_bench import WARMUP_OPTIONS, step_option
-from clods_bench.datasets.generate import LIGHT, make_cameras, make_texture, resolution_of
-from clods_bench.datasets.rasterizer import RasterSettings, render_views
+from clods_bench.datasets.generate import make_cameras, make_texture, resolution_of, scene_raster_settings
+from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.scenes import simulate_scene
 from clods_bench.errors import ClodsError
 from clods_bench.threads import thread_cap
@@ -124,7 +124,7 @@ def bench_infer(cfg: "RunConfig", registry: "Registry | None" = None, sim: str =
     cameras = make_cameras(d, mesh)
     used = cameras[: views or len(cameras)]
     texture, uv = make_texture(d), mesh.texture_uv()
-    settings = RasterSettings(supersample=d.supersample, light=LIGHT if scene.has_lighting else None)
+    settings = scene_raster_settings(d, scene)
     traj = simulate_scene(scene, mesh, frames + 3, seed=d.seed)  # frames 0..frames+2: one untimed frame, then the timed ones
     gpu = torch.device(device) if device != "cpu" else None
 

@@ -39,6 +39,12 @@ TEXTURE_FILE = "texture.png"
 LIGHT = DirectionalLight(direction=(-0.3, 0.8, -0.5), ambient=0.3, diffuse=0.7)  # lights the hanging flag (normal ~ y) well
 
 
+def scene_raster_settings(d: DataConfig, scene: SceneSpec) -> RasterSettings:
+    """The ground-truth renderer's settings for `scene`: the config's supersampling, the scene's light (or LIGHT) if it has lighting."""
+    light = (scene.light or LIGHT) if scene.has_lighting else None
+    return RasterSettings(supersample=d.supersample, light=light)
+
+
 def resolution_of(d: DataConfig) -> tuple[int, int] | str:
     """The mesh resolution from the config: (nx, ny) or 'flagsimple'."""
     if isinstance(d.resolution, str):
@@ -104,6 +110,8 @@ def scene_identity(scene: SceneSpec) -> dict[str, Any]:
     for f in dataclasses.fields(scene):
         if f.name in ("description", "cloth"):  # prose changes no data; the cloth is merged below
             continue
+        if f.name == "light" and scene.light is None:  # unset: scenes from before lights existed keep their fingerprints
+            continue
         value = getattr(scene, f.name)
         out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     cloth = scene.cloth.identity()
@@ -139,7 +147,7 @@ def _setup(d: DataConfig, scene: SceneSpec) -> _Setup:
     key = json.dumps([d.identity(), scene_fingerprint(scene)], sort_keys=True, default=repr)
     if key not in _SETUPS:
         mesh = scene.build_mesh(resolution_of(d))
-        settings = RasterSettings(supersample=d.supersample, light=LIGHT if scene.has_lighting else None)
+        settings = scene_raster_settings(d, scene)
         _SETUPS.clear()  # one dataset at a time: keep memory flat
         _SETUPS[key] = _Setup(mesh, make_cameras(d, mesh), make_texture(d), settings)
     return _SETUPS[key]

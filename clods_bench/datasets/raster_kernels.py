@@ -9,7 +9,8 @@ Pipeline per view, on an s*W x s*H sample grid (sample (R, C) centre at (C+0.5, 
    points to +x, or to +y for horizontal edges) every sample is claimed by exactly one of them;
 3. z-buffer on camera z with perspective-correct barycentrics w.r.t. the *original* triangle
    (clipped vertices carry their 3D barycentric weights), so shading is deferred to visible samples;
-4. shading: bilinear, wrapping texture lookup, optional two-sided Lambertian with smooth normals;
+4. shading: bilinear, wrapping texture lookup, optional two-sided Lambertian with smooth normals and
+   cast shadows (a point farther from the light than the frame's shadow map gets only the ambient term);
 5. s x s box filter down to W x H.
 Nothing here compiles at import: kernels are lazily compiled on first call and cached on disk.
 """
@@ -20,6 +21,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from clods_bench.datasets import shadow_kernels as sk
 
 
 @njit(cache=True, nogil=True)
@@ -193,8 +196,9 @@ def sample_bilinear(tex, u, v, out):
 
 
 @njit(cache=True, nogil=True)
-def shade_view(fid, bary, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, bg, s, out):
-    """Shade visible samples and box-filter s x s blocks into out (H,W,3)."""
+def shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out):
+    """Shade visible samples and box-filter s x s blocks into out (H,W,3); `shadow` = (size, basis, map, u0, v0, texel), size 0: none."""
+    ssize, basis, smap, u0, v0, texel = shadow
     h, w = out.shape[0], out.shape[1]
     ws = w * s
     col = np.empty(3)
@@ -226,6 +230,12 @@ def shade_view(fid, bary, cells, uv, tex, normals, use_light, light_dir, ambient
                         if nn > 0.0:
                             cosang = abs(nx * light_dir[0] + ny * light_dir[1] + nz * light_dir[2]) / nn
                         shade = ambient + diffuse * cosang
+                        if ssize > 0:
+                            wx = b0 * verts[a, 0] + b1 * verts[b, 0] + b2 * verts[cc, 0]
+                            wy = b0 * verts[a, 1] + b1 * verts[b, 1] + b2 * verts[cc, 1]
+                            wz = b0 * verts[a, 2] + b1 * verts[b, 2] + b2 * verts[cc, 2]
+                            if sk.in_shadow(wx, wy, wz, basis, smap, ssize, u0, v0, texel):
+                                shade = ambient
                     for j in range(3):
                         acc[j] += col[j] * shade
             for j in range(3):
@@ -233,18 +243,27 @@ def shade_view(fid, bary, cells, uv, tex, normals, use_light, light_dir, ambient
 
 
 @njit(cache=True, nogil=True)
-def render_views_kernel(verts, cells, uv, tex, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, bg, out):
-    """Render every view n into out[n] (N,H,W,3); cameras given as stacked K, R, t."""
+def render_views_kernel(
+    verts, cells, uv, tex, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, shadow_size, shadow_bias,
+    shadow_slope_bias, shadow_basis, bg, out,
+):  # fmt: skip
+    """Render every view n into out[n] (N,H,W,3); cameras given as stacked K, R, t; one shadow map per call (frame)."""
     hs, ws = h * s, w * s
     zbuf = np.empty(hs * ws)
     fid = np.empty(hs * ws, dtype=np.int32)
     bary = np.empty((hs * ws, 3))
     normals = vertex_normals(verts, cells) if use_light else np.zeros((1, 3))
+    smap = np.empty(shadow_size * shadow_size if use_light else 0)
+    u0, v0, texel = 0.0, 0.0, 1.0
+    if use_light and shadow_size > 0:
+        u0, v0, texel = sk.shadow_frame(verts, shadow_basis, shadow_size)
+        sk.shadow_map(verts, cells, shadow_basis, shadow_size, shadow_bias, shadow_slope_bias, u0, v0, texel, smap)
+    shadow = (shadow_size if use_light else 0, shadow_basis, smap, u0, v0, texel)
     for n in range(Ks.shape[0]):
         cam = to_camera(verts, Rs[n], ts[n])
         K = Ks[n]
         raster_view(cam, cells, K[0, 0] * s, K[1, 1] * s, K[0, 2] * s, K[1, 2] * s, near, hs, ws, zbuf, fid, bary)
-        shade_view(fid, bary, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, bg, s, out[n])
+        shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out[n])
 
 
 @njit(cache=True, nogil=True)

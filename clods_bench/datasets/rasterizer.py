@@ -11,42 +11,23 @@ it shares no code with them. Conventions (see `cameras.py` for the camera ones):
   lookup WRAPS around (UVs outside [0,1] tile the texture; suits the tiling procedural one);
 - triangles crossing the near plane z = near are clipped against it (parts behind dropped);
 - optional two-sided Lambertian light ambient + diffuse*|n . -d| with smooth (area-weighted,
-  interpolated, renormalised) vertex normals; output is clipped to [0, 1].
+  interpolated, renormalised) vertex normals, and optional cast shadows from a shadow map of the
+  frame's triangles (a shadowed point gets only the ambient term; see `lighting`); output is
+  clipped to [0, 1].
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from clods_bench.datasets import raster_kernels as rk
 from clods_bench.datasets.cameras import Camera
+from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.errors import ClodsError
 
 __all__ = ["DirectionalLight", "RasterSettings", "render", "render_views", "render_depth"]
-
-
-@dataclass(frozen=True)
-class DirectionalLight:
-    """A distant light; `direction` points from the light toward the scene (world frame)."""
-
-    direction: tuple[float, float, float] = field(default=(0.0, 0.0, -1.0))
-    ambient: float = 0.3
-    diffuse: float = 0.7
-
-    def __post_init__(self) -> None:
-        d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
-        if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0.0:
-            raise ClodsError(f"direction must be a finite non-zero 3-vector, got {self.direction!r}", where="light.direction")
-        if not (np.isfinite(self.ambient) and np.isfinite(self.diffuse)):
-            raise ClodsError("ambient and diffuse must be finite", where="light")
-        object.__setattr__(self, "direction", tuple(float(x) for x in d))  # hashable, comparable
-
-    def unit_direction(self) -> np.ndarray:
-        """(3,) unit vector of `direction`."""
-        d = np.asarray(self.direction, dtype=np.float64)
-        return d / np.linalg.norm(d)
 
 
 @dataclass(frozen=True)
@@ -67,6 +48,10 @@ class RasterSettings:
             raise ClodsError(f"background must be an RGB triple, got {self.background!r}", where="settings.background")
         if not (np.isfinite(self.near) and self.near > 0):
             raise ClodsError(f"near must be a positive number, got {self.near}", where="settings.near")
+        if self.light is not None:
+            if not isinstance(self.light, DirectionalLight):
+                raise ClodsError(f"light is a {type(self.light).__name__}, expected a DirectionalLight or None", where="settings.light")
+            self.light.validate(where="settings")
 
 
 def _check_mesh(verts: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,11 +126,15 @@ def render_views(
     light_dir = light.unit_direction() if light is not None else np.zeros(3)
     ambient = float(light.ambient) if light is not None else 1.0
     diffuse = float(light.diffuse) if light is not None else 0.0
+    shadow_size = int(light.shadow_map_size) if light is not None else 0
+    basis = light.basis() if shadow_size > 0 else np.eye(3)
     out = np.empty((Ks.shape[0], h, w, 3), dtype=np.float32)
     bg = np.asarray(settings.background, dtype=np.float64)
     rk.render_views_kernel(
         verts, cells, uv, texture, Ks, Rs, ts, h, w, int(settings.supersample), float(settings.near),
-        light is not None, light_dir, ambient, diffuse, bg, out,
+        light is not None, light_dir, ambient, diffuse, shadow_size,
+        float(light.shadow_bias) if light is not None else 0.0, float(light.shadow_slope_bias) if light is not None else 0.0,
+        basis, bg, out,
     )  # fmt: skip
     return out
 

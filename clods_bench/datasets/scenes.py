@@ -1,4 +1,4 @@
-"""Named cloth scenes (flag, stiff, storm, large time step, cylinder) and their simulation.
+"""Named cloth scenes (flag, stiff, storm, large time step, lit with shadows, cylinder) and their simulation.
 
 A scene is its cloth (a `Cloth` from `cloths`: the built-in flag and cylinder, or any triangle
 mesh a scene plugin brings), the physics (the environment) and the ranges its trajectories are drawn from;
@@ -30,6 +30,7 @@ from clods_bench.datasets.cloths import (
     validate_cloth_mesh,
     validate_handle_motion,
 )
+from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.types import NORMAL, ClothMesh, Trajectory
 from clods_bench.errors import ClodsError, unknown_name
 
@@ -55,12 +56,21 @@ class SceneSpec:
     wind_speed_range: tuple[float, float] = (8.0, 8.0)  # mean wind speed, m/s (one value: the same environment)
     wind_direction_spread: float = 0.0  # azimuth of the wind is +x +- this, rad
     warmup_time: float = 1.0  # seconds simulated before frame 0 is recorded (frame 0 = the cloth already in motion)
+    light: DirectionalLight | None = None
+    """The ground-truth renderer's light and shadows when `has_lighting` (None: the generator's default light, no
+    shadows). Only the ground-truth frames see it; the Gaussian renderers are not given it."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.cloth, Cloth):
             raise ClodsError(
                 f"cloth is a {type(self.cloth).__name__}, expected a clods_bench.datasets.cloths.Cloth", where=f"scene {self.name}"
             )
+        if self.light is not None:
+            if not isinstance(self.light, DirectionalLight):
+                raise ClodsError(f"light is a {type(self.light).__name__}, expected a DirectionalLight", where=f"scene {self.name}")
+            if not self.has_lighting:
+                raise ClodsError("light is set but has_lighting is False", where=f"scene {self.name}", hint="set has_lighting=True")
+            self.light.validate(where=f"scene {self.name}")
 
     @property
     def kind(self) -> str:
@@ -192,6 +202,10 @@ _FLAG = SolverParams(
     turbulence_amplitude=0.5, turbulence_time_scale=1.0, wind_ramp_time=0.0, air_drag=0.02, damping_stiffness=1e-3
 )
 
+# From the pole side, above and slightly in front of the flag: the light grazes the cloth, so its folds shadow
+# the cloth behind them (at ci 2-32% of the flag's pixels per frame, 13-16% on average; see README "Lighting").
+FLAG_LIGHT = DirectionalLight(direction=(1.0, 0.35, -0.5), ambient=0.3, diffuse=0.7, shadow_map_size=512, shadow_bias=0.01)
+
 BUILTIN_SCENES: tuple[SceneSpec, ...] = (
     SceneSpec("flag", "FLAGSIMPLE-like flag pinned on its pole, flying in one 8 m/s wind with light turbulence (the same for every trajectory)", FlagCloth(), _FLAG),
     SceneSpec(
@@ -207,6 +221,14 @@ BUILTIN_SCENES: tuple[SceneSpec, ...] = (
         init_speed_range=(0.0, 3.0),
     ),
     SceneSpec("flag-large-dt", "the flag integrated with a 0.05 s time step", FlagCloth(), _FLAG, dt=0.05),
+    SceneSpec(
+        "flag-lit",
+        "the flag (same physics and trajectories) rendered under a grazing directional light with cast shadows",
+        FlagCloth(),
+        _FLAG,
+        has_lighting=True,
+        light=FLAG_LIGHT,
+    ),
     SceneSpec(
         "cylinder",
         "an open tube of cloth hanging from its pinned top ring, swaying in wind (shape generalisation)",

@@ -19,7 +19,7 @@ from clods_bench.benchmark.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.runner import run_task
 from clods_bench.benchmark.tables import write_tables
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
-from clods_bench.datasets.generate import LIGHT, make_texture, resolution_of
+from clods_bench.datasets.generate import make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
@@ -92,7 +92,7 @@ def _registry(cfg) -> Registry:
     pm = make_plugin_manager(load_entry_points=True)
     scene = Registry.from_plugin_manager(pm).get("scene", cfg.data.scene)
     mesh = scene.build_mesh(resolution_of(cfg.data))
-    settings = RasterSettings(supersample=cfg.data.supersample, light=LIGHT if scene.has_lighting else None)
+    settings = scene_raster_settings(cfg.data, scene)
     return Registry.from_plugin_manager(make_plugin_manager([Doubles(RasterDouble(mesh.texture_uv(), make_texture(cfg.data), settings))]))
 
 
@@ -148,7 +148,7 @@ def _gt_render_args(cfg) -> tuple:
 
     scene = default_registry().get("scene", cfg.data.scene)
     mesh = scene.build_mesh(resolution_of(cfg.data))
-    return mesh.texture_uv(), make_texture(cfg.data), RasterSettings(supersample=cfg.data.supersample, light=LIGHT if scene.has_lighting else None)
+    return mesh.texture_uv(), make_texture(cfg.data), scene_raster_settings(cfg.data, scene)
 
 
 def test_constant_renderer_scores_the_analytic_psnr_and_grid(tiny_root: Path, tmp_path: Path) -> None:

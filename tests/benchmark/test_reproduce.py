@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import textwrap
 from pathlib import Path
@@ -67,6 +69,18 @@ def test_backbone_ablation_has_every_learned_backbone_and_reuses_table2_for_mgn(
     assert config_identity(rows[("ablation_backbone", "CloDS (MGN)")]) == config_identity(rows[("table2_cdg", "CloDS")])
     assert config_identity(rows[("ablation_backbone", "CloDS (BSMS)")]) != config_identity(rows[("table2_cdg", "CloDS")])
     assert rows[("table2_cdg", "DHMP")].sim == "dhmp"
+
+
+def test_lighting_table_differs_from_table2_clods_only_in_the_scene() -> None:
+    """Paper lighting table: 'w/o light' is Table 2's CloDS** run (run once), 'light' the same config on flag-lit."""
+    from clods_bench.benchmark.reproduce import config_identity
+
+    runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
+    rows = {(run.table, run.label): cfg for run, cfg in runs}
+    lit, unlit, clods2 = rows[("lighting_cdg", "light")], rows[("lighting_cdg", "w/o light")], rows[("table2_cdg", "CloDS**")]
+    assert config_identity(unlit) == config_identity(clods2) and unlit.data.scene == "flag"
+    assert lit.data.scene == "flag-lit" and default_registry().get("scene", "flag-lit").has_lighting
+    assert config_identity(dataclasses.replace(lit, data=dataclasses.replace(lit.data, scene="flag"))) == config_identity(clods2)
 
 
 def test_reproduce_writes_tables_and_manifest_matching_the_records(tmp_path: Path, tiny_root: Path) -> None:

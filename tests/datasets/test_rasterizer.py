@@ -377,7 +377,7 @@ def test_bad_inputs_raise_clods_errors_naming_the_argument():
     with pytest.raises(ClodsError, match="supersample"):
         render(verts, cells, uv, tex, cam, RasterSettings(supersample=0))
     with pytest.raises(ClodsError, match="direction"):
-        DirectionalLight((0.0, 0.0, 0.0))
+        render(verts, cells, uv, tex, cam, RasterSettings(light=DirectionalLight((0.0, 0.0, 0.0))))
     with pytest.raises(ClodsError, match="verts"):
         render_depth(bad, cells, cam)
 
