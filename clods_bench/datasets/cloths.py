@@ -17,6 +17,8 @@ shape, and a handle motion that does not start where the handles are.
 
 from __future__ import annotations
 
+import abc
+
 import dataclasses
 import hashlib
 import os
@@ -36,15 +38,15 @@ MESH_POS_TOLERANCE = 0.25
 """Largest median relative difference between mesh_pos and rest_pos edge lengths a cloth may have."""
 
 
-class Cloth:
+class Cloth(abc.ABC):
     """Base of a scene's cloth; subclasses are frozen dataclasses holding data (picklable, hashable into the identity)."""
 
     kind: ClassVar[str] = "cloth"
     default_resolution: Resolution | None = None
 
+    @abc.abstractmethod
     def build(self, resolution: Resolution | None) -> ClothMesh:
         """The cloth mesh at `resolution` (None: the cloth's default); HANDLE nodes in `node_type` are the handles."""
-        raise NotImplementedError(f"{type(self).__name__}.build")
 
     def handle_positions(self, t: float, start: np.ndarray) -> np.ndarray | None:
         """Positions (H,3) of the handles at `t` seconds after the simulation starts, from their start (H,3).

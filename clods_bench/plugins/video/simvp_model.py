@@ -10,6 +10,8 @@ T_out = T_in frames are predicted at once.
 
 from __future__ import annotations
 
+import abc
+
 import torch
 from torch import nn
 
@@ -72,7 +74,7 @@ class Translator(nn.Module):
         return z
 
 
-class EncoderTranslatorDecoder(nn.Module):
+class EncoderTranslatorDecoder(nn.Module, abc.ABC):
     """SimVP's frame of work, shared with TAU: a per-frame conv encoder (`enc`), a translator over the frames stacked
     on channels (`translator`), a per-frame conv decoder (`dec`) whose last layer also sees the first encoder layer's
     output (`merge_skip`), and a 1x1 `readout` to RGB. (B,T,3,H,W) -> (B,T,3,H,W)."""
@@ -82,9 +84,9 @@ class EncoderTranslatorDecoder(nn.Module):
     dec: nn.ModuleList
     readout: nn.Module
 
+    @abc.abstractmethod
     def merge_skip(self, z: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
         """How the last decoder layer's input combines the decoded features with the skip connection."""
-        raise NotImplementedError
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, t, c, h, w = x.shape
