@@ -10,17 +10,34 @@ block-Jacobi PCG. Newton starts at the inertial prediction v_0 = v rather than a
 Baraff-Witkin): same cost per iteration and exact for linear forces, but a rotating cloth
 gains no spurious stretch from the linearisation (with 1 iteration, max strain of a 50x stiff
 flag in gusty wind 0.6% instead of 3.6%). Kinematic (non-NORMAL) nodes are filtered out.
+
+Contact with rigid obstacles (`clods_bench.datasets.obstacles`) is implicit penalty contact. Each Newton
+iteration queries the free nodes' predicted positions x + h v_k at t + h; a node closer than the cloth's
+half-thickness T to an obstacle (signed distance d < T, normal n, surface velocity u) gets the force
+k m (T - d) n, and its stiffness h^2 k m n n^T joins the node's diagonal block of the implicit matrix.
+Friction is a regularised Coulomb drag -c (I - n n^T)(v+ - u), c = mu k m (T - d) / max(|v_t,rel|, eps),
+with c (I - n n^T) h added to the same block. Why this method: the contact terms live on 3x3 diagonal
+blocks only, so the system keeps its sparsity and block-Jacobi preconditioner (CG even converges faster:
+the blocks grow), and being implicit the step stays stable for any stiffness k (k h^2 >> 1 at the
+default 1e5/s^2 and dt 0.02: the layer acts as a stiff, overdamped spring; the equilibrium depth
+under gravity is g / k = 0.1 mm). Explicit penalties would need dt < 2/sqrt(k); constraint projection
+or an LCP would need a new solver. Nodes are not bounced: after the step, nodes in the layer lose the
+normal velocity with which they approach the obstacle (an inelastic layer), and any node still deeper
+than T inside an obstacle is projected back to its surface (a safety net that counts in
+`stats["contact_projections"]`). Without obstacles nothing of this runs: the step is bit-identical
+to the solver without contact.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from clods_bench.datasets import block_cg, cloth_energy, wind
+from clods_bench.datasets.obstacles import Obstacle
 from clods_bench.datasets.types import NORMAL, ClothMesh
 from clods_bench.errors import ClodsError
 
@@ -63,6 +80,14 @@ class SolverParams:
     """Relative residual at which conjugate gradients stops."""
     cg_max_iter: int = 2000
     """Iteration cap of conjugate gradients per Newton iteration."""
+    contact_thickness: float = 0.01
+    """Collision half-thickness of the cloth (m): nodes closer than this to an obstacle are in contact."""
+    contact_stiffness: float = 1e5
+    """Penalty stiffness per unit node mass (1/s^2): contact force k m (thickness - distance) along the normal."""
+    friction: float = 0.3
+    """Coulomb friction coefficient between cloth and obstacles; 0 for frictionless contact."""
+    friction_stick_speed: float = 1e-3
+    """Regularisation of Coulomb friction (m/s): below this sliding speed friction is a viscous drag."""
 
     def validate(self, where: str = "solver params") -> None:
         """Raise ClodsError naming the field that is out of range."""
@@ -81,20 +106,39 @@ class SolverParams:
             ("newton_iterations", self.newton_iterations >= 1),
             ("cg_tol", 0 < self.cg_tol < 1),
             ("cg_max_iter", self.cg_max_iter >= 1),
+            ("contact_thickness", self.contact_thickness > 0),
+            ("contact_stiffness", self.contact_stiffness > 0),
+            ("friction", self.friction >= 0),
+            ("friction_stick_speed", self.friction_stick_speed > 0),
         ]
         for name, ok in checks:
-            if not ok:
+            if not (ok and (name not in _CONTACT_FIELDS or np.isfinite(getattr(self, name)))):
                 raise ClodsError(f"value {getattr(self, name)!r} is out of range", where=f"{where}.{name}")
         for name in ("gravity", "wind_velocity"):
             vec = np.asarray(getattr(self, name), dtype=np.float64)
             if vec.shape != (3,) or not np.isfinite(vec).all():
                 raise ClodsError(f"must be 3 finite numbers, got {getattr(self, name)!r}", where=f"{where}.{name}")
 
+    def identity(self) -> dict[str, Any]:
+        """The fields that decide the data: `dataclasses.asdict`, less the contact fields left at their defaults.
+
+        Contact parameters only matter with obstacles; leaving them out at their defaults keeps the fingerprints of
+        datasets made before contact existed."""
+        out = dataclasses.asdict(self)
+        for name in _CONTACT_FIELDS:
+            if out[name] == _CONTACT_DEFAULTS[name]:
+                del out[name]
+        return out
+
     def scaled(self, membrane: float = 1.0, bending: float = 1.0) -> "SolverParams":
         """A copy with membrane and bending stiffness multiplied (for stiff-cloth scenes)."""
         return dataclasses.replace(
             self, youngs_modulus=self.youngs_modulus * membrane, bending_stiffness=self.bending_stiffness * bending
         )
+
+
+_CONTACT_FIELDS = ("contact_thickness", "contact_stiffness", "friction", "friction_stick_speed")
+_CONTACT_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SolverParams) if f.name in _CONTACT_FIELDS}
 
 
 class ClothSolver:
@@ -107,6 +151,7 @@ class ClothSolver:
         dt: float,
         seed: int = 0,
         handle_fn: Callable[[float], np.ndarray] | None = None,
+        obstacles: Sequence[Obstacle] = (),
     ) -> None:
         mesh.validate("solver mesh")
         params.validate()
@@ -114,6 +159,12 @@ class ClothSolver:
             raise ClodsError(f"dt must be a positive number, got {dt}", where="ClothSolver.dt")
         self.mesh, self.params, self.dt = mesh, params, float(dt)
         self.handle_fn = handle_fn
+        for i, obstacle in enumerate(obstacles):
+            if not isinstance(obstacle, Obstacle):
+                raise ClodsError(f"is a {type(obstacle).__name__}, expected an Obstacle", where=f"ClothSolver.obstacles[{i}]")
+            obstacle.validate(f"ClothSolver.obstacles[{i}]")
+        self.obstacles: Sequence[Obstacle] = list(obstacles)
+        """The obstacles of the next steps; a caller may reassign them (e.g. per rollout)."""
         self.geo = cloth_energy.rest_geometry(mesh)
         v = mesh.num_nodes
         self.mass = np.zeros(v)
@@ -129,7 +180,8 @@ class ClothSolver:
         )
         # air acts on moving cloth even in still air, so aerodynamics is on whenever a coefficient is
         self.has_wind = bool(params.air_density > 0 or params.air_drag > 0)
-        self.stats: dict[str, float] = {"cg_iterations": 0, "cg_residual_max": 0.0, "steps": 0}
+        self.free_nodes = np.flatnonzero(self.free)
+        self.stats: dict[str, float] = {"cg_iterations": 0, "cg_residual_max": 0.0, "steps": 0, "contacts": 0, "contact_projections": 0}
 
     def handle_positions(self, t: float, x: np.ndarray) -> np.ndarray:
         """Positions (H,3) of the kinematic nodes at time t (unchanged when no handle_fn)."""
@@ -176,7 +228,7 @@ class ClothSolver:
             )  # fmt: skip
         bv = np.empty_like(v)
         block_cg.block_matvec(pat.indptr, pat.indices, wind_blocks, v, bv)
-        for _ in range(p.newton_iterations):
+        for it in range(p.newton_iterations):
             xk = x + h * vk
             f_el, kblocks = self._forces(xk)
             kv = np.empty_like(v)
@@ -186,13 +238,59 @@ class ClothSolver:
             rhs = -m3 * (vk - v) + h * (f_el + f_ext - bvk + bv - p.damping_mass * m3 * vk - p.damping_stiffness * kv)
             a = (h * p.damping_stiffness + h * h) * kblocks + h * wind_blocks
             a[pat.diag] += ((1.0 + h * p.damping_mass) * self.mass)[:, None, None] * np.eye(3)[None]
+            if self.obstacles:
+                self._add_contact(xk, vk, t + h, h, rhs, a, count=it == p.newton_iterations - 1)
             delta = np.zeros_like(v)
             iters, res = block_cg.block_pcg(pat.indptr, pat.indices, pat.diag, a, rhs, delta, self.free, p.cg_tol, p.cg_max_iter)
             vk = vk + delta
             self.stats["cg_iterations"] += iters
             self.stats["cg_residual_max"] = max(float(self.stats["cg_residual_max"]), float(res))
         self.stats["steps"] += 1
+        if self.obstacles:
+            return self._resolve_contact(x + h * vk, vk, t + h)
         return x + h * vk, vk
+
+    def _contacts(self, x: np.ndarray, t: float, within: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Per obstacle, the free nodes closer than `within` to it at time t: (nodes, distance, normal, surface velocity)."""
+        out = []
+        nodes = self.free_nodes
+        pts = x[nodes]
+        for obstacle in self.obstacles:
+            d, n, u = obstacle.query(pts, t)
+            hit = np.flatnonzero(d < within)
+            if hit.size:
+                out.append((nodes[hit], d[hit], n[hit], u[hit]))
+        return out
+
+    def _add_contact(self, xk: np.ndarray, vk: np.ndarray, t: float, h: float, rhs: np.ndarray, a: np.ndarray, count: bool) -> None:
+        """Add penalty and friction forces (times h) to `rhs` and their implicit terms to the diagonal blocks of `a`."""
+        p = self.params
+        for nodes, d, n, u in self._contacts(xk, t, p.contact_thickness):
+            km = p.contact_stiffness * self.mass[nodes]
+            fn = km * (p.contact_thickness - d)  # normal force magnitude, > 0
+            nn = n[:, :, None] * n[:, None, :]
+            tangent = np.eye(3)[None] - nn
+            rel = vk[nodes] - u
+            slip = rel - np.einsum("ni,ni->n", rel, n)[:, None] * n
+            c = p.friction * fn / np.maximum(np.linalg.norm(slip, axis=1), p.friction_stick_speed)
+            np.add.at(rhs, nodes, h * (fn[:, None] * n - c[:, None] * slip))
+            np.add.at(a, self.pattern.diag[nodes], (h * h) * km[:, None, None] * nn + h * c[:, None, None] * tangent)
+            if count:  # active node-steps: counted once per step
+                self.stats["contacts"] += nodes.size
+
+    def _resolve_contact(self, x: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """After a step: nodes in the contact layer lose their approaching normal velocity; nodes deeper than the
+        thickness inside an obstacle are projected back to its surface."""
+        p = self.params
+        for nodes, d, n, u in self._contacts(x, t, p.contact_thickness):
+            vn = np.einsum("ni,ni->n", v[nodes] - u, n)
+            approach = vn < 0
+            v[nodes[approach]] -= vn[approach, None] * n[approach]
+            deep = d < -p.contact_thickness
+            if deep.any():
+                x[nodes[deep]] -= d[deep, None] * n[deep]
+                self.stats["contact_projections"] += int(deep.sum())
+        return x, v
 
     def energy(self, x: np.ndarray, v: np.ndarray) -> dict[str, float]:
         """Kinetic, membrane, bending and gravity potential energy (J) and their total."""
