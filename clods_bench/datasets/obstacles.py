@@ -451,7 +451,7 @@ class FrameMeshObstacle(Obstacle):
         frames = np.asarray(self.frames, dtype=np.float64)
         u = (float(t) - self.start_time) / self.dt
         last = frames.shape[0] - 1
-        if u <= 0 or last == 0:
+        if u < 0 or last == 0:
             pos, vel = frames[0].copy(), np.zeros_like(frames[0])
         elif u >= last:
             pos, vel = frames[last].copy(), np.zeros_like(frames[0])
