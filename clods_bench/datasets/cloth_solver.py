@@ -12,20 +12,27 @@ gains no spurious stretch from the linearisation (with 1 iteration, max strain o
 flag in gusty wind 0.6% instead of 3.6%). Kinematic (non-NORMAL) nodes are filtered out.
 
 Contact with rigid obstacles (`clods_bench.datasets.obstacles`) is implicit penalty contact. Each Newton
-iteration queries the free nodes' predicted positions x + h v_k at t + h; a node closer than the cloth's
-half-thickness T to an obstacle (signed distance d < T, normal n, surface velocity u) gets the force
-k m (T - d) n, and its stiffness h^2 k m n n^T joins the node's diagonal block of the implicit matrix.
-Friction is a regularised Coulomb drag -c (I - n n^T)(v+ - u), c = mu k m (T - d) / max(|v_t,rel|, eps),
-with c (I - n n^T) h added to the same block. Why this method: the contact terms live on 3x3 diagonal
-blocks only, so the system keeps its sparsity and block-Jacobi preconditioner (CG even converges faster:
-the blocks grow), and being implicit the step stays stable for any stiffness k (k h^2 >> 1 at the
-default 1e5/s^2 and dt 0.02: the layer acts as a stiff, overdamped spring; the equilibrium depth
-under gravity is g / k = 0.1 mm). Explicit penalties would need dt < 2/sqrt(k); constraint projection
-or an LCP would need a new solver. Nodes are not bounced: after the step, nodes in the layer lose the
-normal velocity with which they approach the obstacle (an inelastic layer), and any node still deeper
-than T inside an obstacle is projected back to its surface (a safety net that counts in
-`stats["contact_projections"]`). Without obstacles nothing of this runs: the step is bit-identical
-to the solver without contact.
+iteration queries the free nodes at their predicted positions at t + h: x + h v_k, and in the first
+iteration (v_0 = v) also pushed on by the external forces, + h^2 f_ext / m, so that a cloth resting in the
+contact layer is seen in contact rather than leaving the layer for a free-fall step. A node closer than
+the cloth's half-thickness T to an obstacle (signed distance d < T, normal n, surface velocity u) gets
+the force k m (T - d) n, linearised about the query point (exact for a plane), and the stiffness
+h^2 k m n n^T joins its diagonal block of the implicit matrix. Friction is a regularised Coulomb drag
+-c (I - n n^T)(v+ - u) with c = mu N / max(s, eps), added to the residual and (times h) to the same block:
+N is the normal force that stops the node's approach within the step against the other forces, and s
+the slip speed Coulomb's law predicts at the step's end (slip pushed by the other tangential forces,
+less mu N h / m), so a sliding node loses exactly mu N h / m of speed per step and one below eps sticks.
+
+Why this method: the contact terms live on the 3x3 diagonal blocks only, so the system keeps its sparsity
+and block-Jacobi preconditioner (what contact adds to the diagonal helps rather than hurts CG), and being implicit the step
+stays stable for any stiffness (k h^2 = 40 at the default 1e5/s^2 and dt 0.02: the layer acts as a stiff,
+overdamped spring; the equilibrium depth under gravity is g / k = 0.1 mm). Explicit penalties would need
+dt < 2/sqrt(k); constraint projection or an LCP solve would need a different solver. Nodes do not bounce:
+after the step, nodes in the layer lose the normal velocity with which they approach the obstacle (an
+inelastic layer: it also holds at the next step's start), and any node still deeper than T inside an
+obstacle is projected back to its surface (a safety net, counted in `stats["contact_projections"]`;
+`stats["contacts"]` counts active node-steps). Without obstacles none of this runs: the step is
+bit-identical to the solver without contact.
 """
 
 from __future__ import annotations
@@ -239,7 +246,10 @@ class ClothSolver:
             a = (h * p.damping_stiffness + h * h) * kblocks + h * wind_blocks
             a[pat.diag] += ((1.0 + h * p.damping_mass) * self.mass)[:, None, None] * np.eye(3)[None]
             if self.obstacles:
-                self._add_contact(xk, vk, t + h, h, rhs, a, count=it == p.newton_iterations - 1)
+                # first iteration: the inertial prediction pushed on by the external forces, so a cloth resting in the
+                # contact layer stays in contact instead of leaving it for a free-fall step; then the iterate itself
+                xq = xk + (h * h / m3) * f_ext if it == 0 else xk
+                self._add_contact(xq, xk, vk, f_el + f_ext, t + h, h, rhs, a, count=it == p.newton_iterations - 1)
             delta = np.zeros_like(v)
             iters, res = block_cg.block_pcg(pat.indptr, pat.indices, pat.diag, a, rhs, delta, self.free, p.cg_tol, p.cg_max_iter)
             vk = vk + delta
@@ -262,19 +272,31 @@ class ClothSolver:
                 out.append((nodes[hit], d[hit], n[hit], u[hit]))
         return out
 
-    def _add_contact(self, xk: np.ndarray, vk: np.ndarray, t: float, h: float, rhs: np.ndarray, a: np.ndarray, count: bool) -> None:
-        """Add penalty and friction forces (times h) to `rhs` and their implicit terms to the diagonal blocks of `a`."""
+    def _add_contact(
+        self, xq: np.ndarray, xk: np.ndarray, vk: np.ndarray, force: np.ndarray, t: float, h: float, rhs: np.ndarray, a: np.ndarray, count: bool
+    ) -> None:
+        """Add penalty and friction forces (times h) at the iterate (xk, vk) to `rhs` and their implicit terms to the
+        diagonal blocks of `a`; the contacts are found and linearised at the query positions xq, `force` is the
+        other forces on the nodes (for friction's normal force)."""
         p = self.params
-        for nodes, d, n, u in self._contacts(xk, t, p.contact_thickness):
+        for nodes, d, n, u in self._contacts(xq, t, p.contact_thickness):
             km = p.contact_stiffness * self.mass[nodes]
-            fn = km * (p.contact_thickness - d)  # normal force magnitude, > 0
+            # the penalty linearised at xq: k m (T - d(xq) - n.(x - xq)) n, exact for a plane
+            depth = p.contact_thickness - d - np.einsum("ni,ni->n", xk[nodes] - xq[nodes], n)
             nn = n[:, :, None] * n[:, None, :]
-            tangent = np.eye(3)[None] - nn
+            m = self.mass[nodes]
             rel = vk[nodes] - u
-            slip = rel - np.einsum("ni,ni->n", rel, n)[:, None] * n
-            c = p.friction * fn / np.maximum(np.linalg.norm(slip, axis=1), p.friction_stick_speed)
-            np.add.at(rhs, nodes, h * (fn[:, None] * n - c[:, None] * slip))
-            np.add.at(a, self.pattern.diag[nodes], (h * h) * km[:, None, None] * nn + h * c[:, None, None] * tangent)
+            vn = np.einsum("ni,ni->n", rel, n)
+            slip = rel - vn[:, None] * n
+            fn_other = np.einsum("ni,ni->n", force[nodes], n)
+            # friction's normal force: what stops the node's approach within the step against the other forces
+            normal_force = np.maximum(-m * vn / h - fn_other, 0.0)
+            # slip speed at the step's end by Coulomb's law: the other forces' tangential push, less mu N h / m
+            pushed = slip + (h / m)[:, None] * (force[nodes] - fn_other[:, None] * n)
+            end_slip = np.linalg.norm(pushed, axis=1) - h * p.friction * normal_force / m
+            c = p.friction * normal_force / np.maximum(end_slip, p.friction_stick_speed)
+            np.add.at(rhs, nodes, h * ((km * depth)[:, None] * n - c[:, None] * slip))
+            np.add.at(a, self.pattern.diag[nodes], (h * h) * km[:, None, None] * nn + h * c[:, None, None] * (np.eye(3)[None] - nn))
             if count:  # active node-steps: counted once per step
                 self.stats["contacts"] += nodes.size
 
