@@ -119,7 +119,7 @@ class Obstacle(abc.ABC):
     Analytic subclasses implement `_local_query` and `_local_surface` in their own frame; `query` and `surface`
     translate by the path's offset and report the path's velocity."""
 
-    path: ObstaclePath | None
+    path: ObstaclePath | None = None  # every subclass declares it as a field
 
     def _offset(self, t: float) -> np.ndarray:
         return np.zeros(3) if self.path is None else self.path.offset(t)
