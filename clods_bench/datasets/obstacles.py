@@ -64,7 +64,8 @@ def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ObstaclePath:
-    """Prescribed rigid translation: piecewise linear offsets at increasing times, smoothed (C1, e.g. smoothstep blend per segment) so velocity has no jumps; held constant after the last time and before the first.
+    """Prescribed rigid translation: piecewise linear offsets at increasing times, smoothed (C1) so velocity has no
+    jumps; held constant after the last time and before the first.
 
     Between times[i] and times[i+1] the offset blends from offsets[i] to offsets[i+1] with the smoothstep
     w(s) = 3 s^2 - 2 s^3, s the fraction of the segment: the velocity is zero at every time in `times` and
@@ -125,7 +126,8 @@ class Obstacle(abc.ABC):
         return np.zeros(3) if self.path is None else self.path.offset(t)
 
     def query(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For points x (N,3) at time t: signed distance (N,) to the surface (negative inside), unit outward normal (N,3) at the closest surface point, and the obstacle's surface velocity (N,3) there."""
+        """For points x (N,3) at time t: signed distance (N,) to the surface (negative inside), unit outward normal
+        (N,3) at the closest surface point, and the obstacle's surface velocity (N,3) there."""
         x = _points(x)
         d, n = self._local_query(x - self._offset(t))
         vel = np.zeros((x.shape[0], 3)) if self.path is None else np.tile(self.path.velocity(t), (x.shape[0], 1))
