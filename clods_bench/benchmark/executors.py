@@ -51,9 +51,27 @@ def ensure_complete_dataset(cfg: RunConfig, registry: Any, progress: bool = True
             store = DatasetStore.open(root)
         except ClodsError:
             store = None
-        if store is not None and set(range(cfg.data.num_train + cfg.data.num_test)) <= store.completed_indices():
+        if (
+            store is not None
+            and set(range(cfg.data.num_train + cfg.data.num_test)) <= store.completed_indices()
+            and _same_scene(store, cfg, registry)
+        ):
             return store
     return ensure_dataset(cfg, registry, progress, executor=executor)
+
+
+def _same_scene(store: Any, cfg: RunConfig, registry: Any) -> bool:
+    """Whether a generated dataset was made from the scene definition the registry holds now (an edited scene, e.g.
+    a changed obstacle or solver parameter, must not reuse it: `generate` then reports the difference)."""
+    made_with = store.config.get("scene_spec") if isinstance(store.config, dict) else None
+    if made_with is None or cfg.data.path:
+        return True  # imported data, or a store from before scene fingerprints
+    from clods_bench.datasets.generate import scene_fingerprint
+
+    try:
+        return made_with == scene_fingerprint(registry.get("scene", cfg.data.scene))
+    except ClodsError:
+        return True  # an unknown scene is reported by the run itself
 
 
 def run_seed_job(job: SeedJob) -> dict[str, Any]:

@@ -30,6 +30,7 @@ from clods_bench.benchmark.descriptors import BuildContext
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.benchmark.sim_bench import WARMUP_OPTIONS, step_option
 from clods_bench.datasets.generate import make_cameras, make_texture, resolution_of, scene_raster_settings
+from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.scenes import simulate_scene
 from clods_bench.errors import ClodsError
@@ -126,10 +127,11 @@ def bench_infer(cfg: "RunConfig", registry: "Registry | None" = None, sim: str =
     texture, uv = make_texture(d), mesh.texture_uv()
     settings = scene_raster_settings(d, scene)
     traj = simulate_scene(scene, mesh, frames + 3, seed=d.seed)  # frames 0..frames+2: one untimed frame, then the timed ones
+    colors, uv = face_colors(traj.cells, traj.node_type), render_uv(uv, traj.num_nodes)  # obstacles drawn as in the data
     gpu = torch.device(device) if device != "cpu" else None
 
     def raster(t: int) -> np.ndarray:
-        return render_views(traj.world_pos[t], traj.cells, uv, texture, used, settings)
+        return render_views(traj.world_pos[t], traj.cells, uv, texture, used, settings, colors)
 
     def splat(t: int) -> Any:
         with torch.no_grad():

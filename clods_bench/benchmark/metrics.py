@@ -11,10 +11,14 @@ PHASES = ("interp", "extrap")
 STATS = ("d_avg", "d_end", "avg")
 
 
-def rmse_per_step(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """(T,) RMSE per frame: sqrt of the mean over nodes and coordinates of the squared error."""
+def rmse_per_step(pred: np.ndarray, gt: np.ndarray, nodes: np.ndarray | None = None) -> np.ndarray:
+    """(T,) RMSE per frame: sqrt of the mean over nodes and coordinates of the squared error.
+
+    `nodes` restricts the mean to those node indices (the cloth's, when a scene stores obstacle nodes)."""
     if pred.shape != gt.shape:
         raise ValueError(f"prediction shape {pred.shape} != ground truth shape {gt.shape}")
+    if nodes is not None:
+        pred, gt = pred[:, nodes], gt[:, nodes]
     diff = pred.astype(np.float64) - gt.astype(np.float64)
     with np.errstate(over="ignore", invalid="ignore"):
         return np.sqrt(np.mean(diff * diff, axis=(1, 2)))

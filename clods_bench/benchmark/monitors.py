@@ -2,15 +2,18 @@
 
 A rollout fails at the first frame t >= 2 (frames 0 and 1 are given) where a position is
 NaN/Inf, where the largest edge strain max_e |l_e(t)/l0_e - 1| exceeds a threshold, or where
-the kinetic energy 1/2 sum_i m_i |(x_i(t) - x_i(t-1))/dt|^2 exceeds a threshold.
+the kinetic energy 1/2 sum_i m_i |(x_i(t) - x_i(t-1))/dt|^2 exceeds a threshold. Only the cloth's
+nodes are monitored: a scene's obstacle nodes are rigid and prescribed (`cloth_monitor`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from clods_bench.datasets.obstacle_nodes import split_cloth
 from clods_bench.datasets.types import ClothMesh, edges_from_cells
 
 
@@ -75,6 +78,12 @@ class MeshMonitor:
     rest_length: np.ndarray  # (E,)
     mass: np.ndarray  # (V,)
     dt: float
+    nodes: np.ndarray | None = None
+    """Indices of the monitored (cloth) nodes in the frames' node list; None: all of them (no obstacle nodes)."""
+
+    def _frames(self, frames: np.ndarray) -> np.ndarray:
+        x = np.asarray(frames, np.float64)
+        return x if self.nodes is None else x[:, self.nodes]
 
     @classmethod
     def from_rest(cls, cells: np.ndarray, rest_pos: np.ndarray, density: float, dt: float) -> "MeshMonitor":
@@ -86,7 +95,7 @@ class MeshMonitor:
 
     def max_strain(self, frames: np.ndarray) -> np.ndarray:
         """(T,) largest |l/l0 - 1| over edges per frame (NaN where a frame is not finite)."""
-        x = np.asarray(frames, np.float64)
+        x = self._frames(frames)
         with np.errstate(over="ignore", invalid="ignore"):
             length = np.linalg.norm(x[:, self.edges[:, 0]] - x[:, self.edges[:, 1]], axis=2)
             strain = np.abs(length / self.rest_length[None, :] - 1.0)
@@ -96,12 +105,21 @@ class MeshMonitor:
 
     def kinetic_energy(self, frames: np.ndarray) -> np.ndarray:
         """(T,) kinetic energy (J) from backward differences; frame 0 gets 0 (no previous frame)."""
-        x = np.asarray(frames, np.float64)
+        x = self._frames(frames)
         out = np.zeros(x.shape[0])
         with np.errstate(over="ignore", invalid="ignore"):
             v = (x[1:] - x[:-1]) / self.dt
             out[1:] = 0.5 * np.einsum("v,tvd->t", self.mass, v * v)
         return out
+
+
+def cloth_monitor(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarray, density: float, dt: float) -> MeshMonitor:
+    """Monitor of a trajectory's cloth (its obstacle nodes left out) against the scene's rest shape, else the flat flag's."""
+    part = split_cloth(cells, mesh_pos, node_type)
+    mesh = scene_rest_mesh(scene, part.cells, part.mesh_pos)
+    rest = mesh.rest_pos if mesh is not None else flat_rest_pos(part.mesh_pos)
+    monitor = MeshMonitor.from_rest(part.cells, rest, density, dt)
+    return monitor if part.obstacle_nodes.size == 0 else dataclasses.replace(monitor, nodes=part.nodes)
 
 
 @dataclass(frozen=True)

@@ -64,23 +64,23 @@ class Cloth(abc.ABC):
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if value is not None:
-                out[f.name] = _canonical(value)
+                out[f.name] = canonical(value)
         return out
 
 
-def _canonical(value: Any) -> Any:
+def canonical(value: Any) -> Any:
     """A JSON-able, content-complete form of a field value: arrays become their dtype, shape and SHA-256."""
     if isinstance(value, np.ndarray):
         data = np.ascontiguousarray(value)
         return {"array": str(data.dtype), "shape": list(data.shape), "sha256": hashlib.sha256(data.tobytes()).hexdigest()}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {"class": f"{type(value).__module__}.{type(value).__qualname__}", **{
-            f.name: _canonical(getattr(value, f.name)) for f in dataclasses.fields(value)
+            f.name: canonical(getattr(value, f.name)) for f in dataclasses.fields(value)
         }}  # fmt: skip
     if isinstance(value, (list, tuple)):
-        return [_canonical(v) for v in value]
+        return [canonical(v) for v in value]
     if isinstance(value, dict):
-        return {str(k): _canonical(v) for k, v in value.items()}
+        return {str(k): canonical(v) for k, v in value.items()}
     return value
 
 
@@ -122,6 +122,29 @@ class CylinderCloth(Cloth):
                 raise ClodsError(f"unknown resolution '{res}'; use 'flagsimple' or (n_around, n_along)", where="cloth")
             res = _CYLINDER_FLAGSIMPLE
         return make_cylinder_mesh(int(res[0]), int(res[1]), *self.size)
+
+
+@dataclass(frozen=True)
+class SheetCloth(Cloth):
+    """A free rectangular sheet lying flat (in the x-y plane at height `height`, centred on the z axis), no handles."""
+
+    kind: ClassVar[str] = "sheet"
+    size: tuple[float, float] = (1.2, 0.6)
+    """(length along x, width along y) in metres."""
+    height: float = 0.45
+    """Height (z) of the sheet's rest plane in metres."""
+    default_resolution: Resolution = (16, 8)
+    """(nx, ny) nodes."""
+
+    def build(self, resolution: Resolution | None) -> ClothMesh:
+        """The sheet at (nx, ny): the flag's triangulation laid flat, every node free."""
+        res = self.default_resolution if resolution is None else resolution
+        if isinstance(res, str):
+            raise ClodsError(f"a sheet has no named resolution '{res}'; use (nx, ny)", where="cloth")
+        flag = make_flag_mesh(int(res[0]), int(res[1]), *self.size)
+        mp = np.asarray(flag.mesh_pos, np.float64)
+        rest = np.stack([mp[:, 0] - 0.5 * self.size[0], mp[:, 1] - 0.5 * self.size[1], np.full(len(mp), self.height)], axis=1)
+        return ClothMesh(flag.cells, flag.mesh_pos, np.full(len(mp), NORMAL, np.int32), rest)
 
 
 @dataclass(frozen=True, eq=False)

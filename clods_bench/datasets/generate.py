@@ -24,6 +24,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from clods_bench.atomic import file_lock
 from clods_bench.benchmark.config import DataConfig, dataclass_from_dict
 from clods_bench.datasets.cameras import Camera, camera_rig
+from clods_bench.datasets.cloths import canonical
+from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
 from clods_bench.datasets.scenes import SceneSpec, simulate_scene
 from clods_bench.datasets.store import DatasetStore
@@ -75,9 +77,14 @@ def render_steps(
     traj: Trajectory, uv: np.ndarray, texture: np.ndarray, cameras: list[Camera], settings: RasterSettings,
     times: Sequence[int] | None = None,
 ) -> Iterator[np.ndarray]:  # fmt: skip
-    """The (N, H, W, 3) uint8 images of each step (or of the steps `times`) from every camera, one step at a time."""
+    """The (N, H, W, 3) uint8 images of each step (or of the steps `times`) from every camera, one step at a time.
+
+    `uv` holds the cloth's texture coordinates; the trajectory's obstacle nodes (after the cloth's) are drawn in
+    `OBSTACLE_COLOR`."""
+    colors = face_colors(traj.cells, traj.node_type)
+    uv = render_uv(uv, traj.num_nodes)
     for t in range(traj.num_steps) if times is None else times:
-        imgs = render_views(traj.world_pos[t], traj.cells, uv, texture, cameras, settings)
+        imgs = render_views(traj.world_pos[t], traj.cells, uv, texture, cameras, settings, colors)
         yield np.clip(np.rint(imgs * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -112,8 +119,15 @@ def scene_identity(scene: SceneSpec) -> dict[str, Any]:
             continue
         if f.name == "light" and scene.light is None:  # unset: scenes from before lights existed keep their fingerprints
             continue
+        if f.name == "obstacles" and not scene.obstacles:  # likewise for scenes without obstacles
+            continue
         value = getattr(scene, f.name)
-        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        if f.name == "params" and not scene.obstacles:  # contact fields at their defaults change nothing without obstacles
+            out[f.name] = value.identity()
+        elif f.name == "obstacles":
+            out[f.name] = canonical(value)
+        else:
+            out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     cloth = scene.cloth.identity()
     clash = sorted(set(cloth) & set(out))
     if clash:

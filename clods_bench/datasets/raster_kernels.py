@@ -196,8 +196,10 @@ def sample_bilinear(tex, u, v, out):
 
 
 @njit(cache=True, nogil=True)
-def shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out):
-    """Shade visible samples and box-filter s x s blocks into out (H,W,3); `shadow` = (size, basis, map, u0, v0, texel), size 0: none."""
+def shade_view(fid, bary, verts, cells, uv, tex, flat, face_col, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out):
+    """Shade visible samples and box-filter s x s blocks into out (H,W,3); `shadow` = (size, basis, map, u0, v0, texel), size 0: none.
+
+    Faces with `flat[f]` take the flat colour face_col[f] instead of the texture (obstacles)."""
     ssize, basis, smap, u0, v0, texel = shadow
     h, w = out.shape[0], out.shape[1]
     ws = w * s
@@ -217,9 +219,13 @@ def shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, 
                         continue
                     a, b, cc = cells[f, 0], cells[f, 1], cells[f, 2]
                     b0, b1, b2 = bary[k, 0], bary[k, 1], bary[k, 2]
-                    u = b0 * uv[a, 0] + b1 * uv[b, 0] + b2 * uv[cc, 0]
-                    v = b0 * uv[a, 1] + b1 * uv[b, 1] + b2 * uv[cc, 1]
-                    sample_bilinear(tex, u, v, col)
+                    if flat[f]:
+                        for j in range(3):
+                            col[j] = face_col[f, j]
+                    else:
+                        u = b0 * uv[a, 0] + b1 * uv[b, 0] + b2 * uv[cc, 0]
+                        v = b0 * uv[a, 1] + b1 * uv[b, 1] + b2 * uv[cc, 1]
+                        sample_bilinear(tex, u, v, col)
                     shade = 1.0
                     if use_light:
                         nx = b0 * normals[a, 0] + b1 * normals[b, 0] + b2 * normals[cc, 0]
@@ -244,7 +250,7 @@ def shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, 
 
 @njit(cache=True, nogil=True)
 def render_views_kernel(
-    verts, cells, uv, tex, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, shadow_size, shadow_bias,
+    verts, cells, uv, tex, flat, face_col, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, shadow_size, shadow_bias,
     shadow_slope_bias, shadow_basis, bg, out,
 ):  # fmt: skip
     """Render every view n into out[n] (N,H,W,3); cameras given as stacked K, R, t; one shadow map per call (frame)."""
@@ -263,7 +269,7 @@ def render_views_kernel(
         cam = to_camera(verts, Rs[n], ts[n])
         K = Ks[n]
         raster_view(cam, cells, K[0, 0] * s, K[1, 1] * s, K[0, 2] * s, K[1, 2] * s, near, hs, ws, zbuf, fid, bary)
-        shade_view(fid, bary, verts, cells, uv, tex, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out[n])
+        shade_view(fid, bary, verts, cells, uv, tex, flat, face_col, normals, use_light, light_dir, ambient, diffuse, shadow, bg, s, out[n])
 
 
 @njit(cache=True, nogil=True)

@@ -13,7 +13,9 @@ it shares no code with them. Conventions (see `cameras.py` for the camera ones):
 - optional two-sided Lambertian light ambient + diffuse*|n . -d| with smooth (area-weighted,
   interpolated, renormalised) vertex normals, and optional cast shadows from a shadow map of the
   frame's triangles (a shadowed point gets only the ambient term; see `lighting`); output is
-  clipped to [0, 1].
+  clipped to [0, 1];
+- optional per-face flat colours (`face_colors`, NaN rows: textured) for untextured surfaces such
+  as obstacles; they are lit and shadowed like the cloth.
 """
 
 from __future__ import annotations
@@ -109,6 +111,19 @@ def _stack_cameras(cameras: list[Camera]) -> tuple[np.ndarray, np.ndarray, np.nd
     return Ks, Rs, ts, int(cameras[0].height), int(cameras[0].width)
 
 
+def _check_face_colors(face_colors: np.ndarray | None, num_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) bool flat-coloured faces and (F,3) float64 colours; rows of NaN (or no array) are textured faces."""
+    if face_colors is None:
+        return np.zeros(num_faces, dtype=np.bool_), np.zeros((num_faces, 3))
+    col = np.asarray(face_colors, dtype=np.float64)
+    if col.shape != (num_faces, 3):
+        raise ClodsError(f"shape {tuple(col.shape)}, expected ({num_faces}, 3)", where="face_colors")
+    flat = ~np.isnan(col).any(axis=1)
+    if not np.isfinite(col[flat]).all() or ((col[flat] < 0) | (col[flat] > 1)).any():
+        raise ClodsError("colours must be in [0, 1] (NaN rows mark textured faces)", where="face_colors")
+    return np.ascontiguousarray(flat), np.ascontiguousarray(np.where(flat[:, None], col, 0.0))
+
+
 def render_views(
     verts: np.ndarray,
     cells: np.ndarray,
@@ -116,11 +131,15 @@ def render_views(
     texture: np.ndarray,
     cameras: list[Camera],
     settings: RasterSettings = RasterSettings(),
+    face_colors: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(N,H,W,3) float32 images in [0,1] of the textured mesh seen from every camera."""
+    """(N,H,W,3) float32 images in [0,1] of the textured mesh seen from every camera.
+
+    `face_colors` (F,3) in [0,1] gives faces a flat colour instead of the texture; NaN rows stay textured."""
     settings.validate()
     verts, cells = _check_mesh(verts, cells)
     uv, texture = _check_texturing(uv, texture, verts.shape[0])
+    flat, face_col = _check_face_colors(face_colors, cells.shape[0])
     Ks, Rs, ts, h, w = _stack_cameras(list(cameras))
     light = settings.light
     light_dir = light.unit_direction() if light is not None else np.zeros(3)
@@ -131,7 +150,7 @@ def render_views(
     out = np.empty((Ks.shape[0], h, w, 3), dtype=np.float32)
     bg = np.asarray(settings.background, dtype=np.float64)
     rk.render_views_kernel(
-        verts, cells, uv, texture, Ks, Rs, ts, h, w, int(settings.supersample), float(settings.near),
+        verts, cells, uv, texture, flat, face_col, Ks, Rs, ts, h, w, int(settings.supersample), float(settings.near),
         light is not None, light_dir, ambient, diffuse, shadow_size,
         float(light.shadow_bias) if light is not None else 0.0, float(light.shadow_slope_bias) if light is not None else 0.0,
         basis, bg, out,
@@ -146,9 +165,10 @@ def render(
     texture: np.ndarray,
     camera: Camera,
     settings: RasterSettings = RasterSettings(),
+    face_colors: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(H,W,3) float32 image in [0,1] of the textured mesh seen from one camera."""
-    return render_views(verts, cells, uv, texture, [camera], settings)[0]
+    """(H,W,3) float32 image in [0,1] of the textured mesh seen from one camera (flat `face_colors` as in `render_views`)."""
+    return render_views(verts, cells, uv, texture, [camera], settings, face_colors)[0]
 
 
 def render_depth(verts: np.ndarray, cells: np.ndarray, camera: Camera, near: float = 1e-3) -> np.ndarray:

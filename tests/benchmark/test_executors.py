@@ -100,3 +100,27 @@ def test_ray_executor_without_ray_says_how_to_install(monkeypatch: pytest.Monkey
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(ClodsError, match=r"clods-bench\[ray\]"):
         make_executor("ray").map(len, ["x"])
+
+
+def test_a_complete_dataset_of_an_edited_scene_is_not_reused(tiny_root: Path) -> None:
+    """A finished dataset is reused only while its scene definition (fingerprint) is unchanged; an edited scene of the
+    same name gets the store's 'different config' error instead of the old trajectories (and nothing is deleted)."""
+    import dataclasses
+
+    from clods_bench.benchmark.executors import ensure_complete_dataset
+    from tests.conftest import tiny_config
+
+    cfg = tiny_config(tiny_root)
+    registry = default_registry()
+    store = ensure_complete_dataset(cfg, registry, progress=False)
+    before = store.completed_indices()
+    flag = registry.get("scene", cfg.data.scene)
+    edited = dataclasses.replace(flag, params=flag.params.scaled(2.0))
+
+    class EditedRegistry:
+        def get(self, kind: str, name: str) -> object:
+            return edited if kind == "scene" else registry.get(kind, name)
+
+    with pytest.raises(ClodsError, match="different config"):
+        ensure_complete_dataset(cfg, EditedRegistry(), progress=False)
+    assert ensure_complete_dataset(cfg, registry, progress=False).completed_indices() == before

@@ -398,3 +398,39 @@ def test_bench_rasterizer_reports_on_the_flagsimple_mesh():
     result = bench_rasterizer(num_views=4, size=64)
     assert result["num_faces"] > 2900 and result["coverage"] > 0.2
     assert result["ms_per_view"] > 0
+
+
+# --- flat face colours (obstacles) ------------------------------------------------------------
+
+
+def _two_quads() -> tuple[np.ndarray, np.ndarray, Camera]:
+    """Two side-by-side squares (2 triangles each) at depth 2 filling the left and right halves of a 32 x 32 view."""
+    cam = front_camera()
+    corners = unproject(cam, [[0, 0], [16, 0], [32, 0], [0, 32], [16, 32], [32, 32]], 2.0)
+    cells = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    return corners, cells, cam
+
+
+def test_flat_face_colours_replace_the_texture_exactly_where_set():
+    """NaN rows keep the texture (identical to no face_colors); coloured faces show exactly their colour, also lit."""
+    verts, cells, cam = _two_quads()
+    uv = np.zeros((6, 2))
+    tex = np.full((2, 2, 3), 0.25, np.float32)
+    plain = render(verts, cells, uv, tex, cam, SS1)
+    colors = np.full((4, 3), np.nan)
+    colors[2:] = (0.1, 0.6, 0.9)
+    img = render(verts, cells, uv, tex, cam, SS1, face_colors=colors)
+    np.testing.assert_array_equal(img[:, :15], plain[:, :15])
+    np.testing.assert_allclose(img[:, 17:], np.broadcast_to([0.1, 0.6, 0.9], img[:, 17:].shape), atol=1e-6)
+    np.testing.assert_array_equal(render(verts, cells, uv, tex, cam, SS1, face_colors=np.full((4, 3), np.nan)), plain)
+    lit = RasterSettings(supersample=1, light=DirectionalLight(direction=(0.0, 0.0, 1.0), ambient=0.2, diffuse=0.5, shadow_map_size=0))
+    shaded = render(verts, cells, uv, tex, cam, lit, face_colors=colors)  # facing the light: ambient + diffuse = 0.7
+    np.testing.assert_allclose(shaded[:, 17:], np.broadcast_to(0.7 * np.array([0.1, 0.6, 0.9]), shaded[:, 17:].shape), atol=1e-6)
+
+
+def test_bad_face_colours_are_one_clear_error():
+    verts, cells, cam = _two_quads()
+    with pytest.raises(ClodsError, match=r"face_colors.*expected \(4, 3\)"):
+        render(verts, cells, np.zeros((6, 2)), BLACK, cam, SS1, face_colors=np.zeros((3, 3)))
+    with pytest.raises(ClodsError, match="face_colors.*in \\[0, 1\\]"):
+        render(verts, cells, np.zeros((6, 2)), BLACK, cam, SS1, face_colors=np.full((4, 3), 2.0))

@@ -22,16 +22,19 @@ def max_strain(mesh, frames: np.ndarray) -> float:
 
 def test_builtin_scene_set():
     names = [s.name for s in BUILTIN_SCENES]
-    assert names == ["flag", "flag-stiff", "flag-storm", "flag-large-dt", "flag-lit", "cylinder"]
-    flag, stiff, storm, large_dt, lit, cyl = BUILTIN_SCENES
+    assert names == ["flag", "flag-stiff", "flag-storm", "flag-large-dt", "flag-lit", "cylinder", "sphere-drop", "flag-ball"]
+    flag, stiff, storm, large_dt, lit, cyl, drop, ball = BUILTIN_SCENES
     assert stiff.params.youngs_modulus >= 50 * flag.params.youngs_modulus
     assert stiff.params.bending_stiffness >= 50 * flag.params.bending_stiffness
     assert storm.wind_speed_range[0] > flag.wind_speed_range[1]
     assert large_dt.dt >= 0.04 and flag.dt == 0.02
     assert cyl.kind == "cylinder" and all(s.kind == "flag" for s in BUILTIN_SCENES[:5])
     assert lit.params == flag.params and lit.has_lighting and lit.light is not None and lit.light.has_shadows
+    assert drop.has_obstacles and ball.has_obstacles and not drop.has_handles and not drop.has_wind and drop.kind == "sheet"
+    assert ball.kind == "flag" and ball.params == flag.params and ball.obstacles[0].path is not None
     for s in BUILTIN_SCENES:
-        assert s.has_handles and s.has_wind and not s.has_obstacles and s.has_lighting == (s is lit)
+        assert s.has_handles == (s is not drop) and s.has_wind == (s is not drop)
+        assert s.has_obstacles == (s in (drop, ball)) and s.has_lighting == (s is lit)
         assert "\n" not in s.description and s.description
         s.params.validate(s.name)
 

@@ -26,6 +26,7 @@ from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, t
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.interfaces import Simulator
 from clods_bench.benchmark.metrics import rmse_per_step
+from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -144,7 +145,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
 
     seconds = np.concatenate([e.seconds[1:] for e in extracted])
     iters = np.concatenate([e.iterations[1:] for e in extracted])
-    egt = np.stack([rmse_per_step(e.world_pos, g.world_pos) for e, g in zip(extracted, gts)])  # (B, frames)
+    egt = np.stack([rmse_per_step(e.world_pos, g.world_pos, cloth_nodes(g.node_type)) for e, g in zip(extracted, gts)])  # (B, frames)
     stats.update({
         "stage2_seconds": float(seconds.sum()),
         "stage2_ms_per_frame": 1000.0 * float(seconds.mean()),
@@ -189,9 +190,10 @@ def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequ
     for ext, gt in zip(meshes, truth):
         inp = RolloutInput.from_trajectory(gt, gt.num_steps)
         pred = check_rollout(sim.rollout(inp), inp, "clods")
-        curves["E-GT"].append(rmse_per_step(ext.world_pos, gt.world_pos))
-        curves["P-GT"].append(rmse_per_step(pred, gt.world_pos))
-        curves["P-E"].append(rmse_per_step(pred, ext.world_pos))
+        nodes = cloth_nodes(gt.node_type)
+        curves["E-GT"].append(rmse_per_step(ext.world_pos, gt.world_pos, nodes))
+        curves["P-GT"].append(rmse_per_step(pred, gt.world_pos, nodes))
+        curves["P-E"].append(rmse_per_step(pred, ext.world_pos, nodes))
     return {k: np.mean(np.stack(v), axis=0).tolist() for k, v in curves.items() if v}
 
 

@@ -15,8 +15,10 @@ from clods_bench.benchmark.fit_cache import fit_cost_seconds
 from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
 from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
-from clods_bench.benchmark.monitors import MeshMonitor, flat_rest_pos, scene_rest_mesh
+from clods_bench.benchmark.monitors import cloth_monitor
+from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
 
@@ -74,10 +76,10 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
                 step = divergence_step(pred)
                 if step is not None:
                     diverged[f"{group}/{i}"] = step
-                curves[group].append(rmse_per_step(pred, traj.world_pos[: splits.num_steps]))
+                curves[group].append(rmse_per_step(pred, traj.world_pos[: splits.num_steps], cloth_nodes(traj.node_type)))
                 if sample is None or (group == "unviewed" and sample[0] != "unviewed"):  # picture: an unseen trajectory if any
                     sample = (group, i, traj, pred)
-                strains.append(_max_strain(scene, traj.cells, traj.mesh_pos, pred))
+                strains.append(_max_strain(scene, traj, pred))
                 bar.advance(job)
 
     _save_pictures(ctx, sample, splits.interp_steps, extraction)
@@ -114,11 +116,9 @@ def _scored_store(train_store: DatasetStore, scored: DataConfig, same: bool) -> 
     return eval_store
 
 
-def _max_strain(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, pred: np.ndarray) -> float:
-    """Largest edge strain |l/l0 - 1| of a rollout over its finite frames, against the scene's rest shape (inf if none is finite)."""
-    mesh = scene_rest_mesh(scene, cells, mesh_pos)
-    rest = mesh.rest_pos if mesh is not None else flat_rest_pos(mesh_pos)
-    per_frame = MeshMonitor.from_rest(cells, rest, 1.0, 1.0).max_strain(pred)
+def _max_strain(scene: object, traj: Trajectory, pred: np.ndarray) -> float:
+    """Largest edge strain |l/l0 - 1| of a rollout's cloth over its finite frames, against the scene's rest shape (inf if none is finite)."""
+    per_frame = cloth_monitor(scene, traj.cells, traj.mesh_pos, traj.node_type, 1.0, 1.0).max_strain(pred)
     finite = per_frame[np.isfinite(per_frame)]
     return float(finite.max()) if finite.size else float("inf")
 

@@ -27,7 +27,7 @@ from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.interfaces import RolloutInput, Simulator, check_rollout
 from clods_bench.benchmark.metrics import rmse_per_step
-from clods_bench.benchmark.monitors import MeshMonitor, first_failure, flat_rest_pos, scene_rest_mesh
+from clods_bench.benchmark.monitors import MeshMonitor, cloth_monitor, first_failure
 from clods_bench.benchmark.fit_cache import fit_cost_seconds
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
@@ -168,7 +168,7 @@ def watch(
     if exc_frame is not None and (frame is None or exc_frame <= frame):
         frame, reason = exc_frame, f"exception: {exc_message}"
     n = 0 if gt is None else min(len(gt), len(pred))
-    curve = rmse_per_step(pred[:n], gt[:n]) if n else np.zeros(0)
+    curve = rmse_per_step(pred[:n], gt[:n], monitor.nodes) if n else np.zeros(0)
     scored = curve[2:]
     finite = np.isfinite(strain)
     return {
@@ -184,10 +184,8 @@ def watch(
 
 
 def _monitor(scene: Any, traj: Trajectory) -> MeshMonitor:
-    mesh = scene_rest_mesh(scene, traj.cells, traj.mesh_pos)
-    rest = mesh.rest_pos if mesh is not None else flat_rest_pos(traj.mesh_pos)
     params = getattr(scene, "params", None)
-    return MeshMonitor.from_rest(traj.cells, rest, float(getattr(params, "density", 1.0)), traj.dt)
+    return cloth_monitor(scene, traj.cells, traj.mesh_pos, traj.node_type, float(getattr(params, "density", 1.0)), traj.dt)
 
 
 def _nanmean_curves(curves: list[np.ndarray], length: int, reduce: str) -> list[float]:

@@ -25,6 +25,8 @@ import numpy as np
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.benchmark.monitors import flat_rest_pos, scene_rest_mesh
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
+from clods_bench.datasets.obstacle_nodes import split_cloth
+from clods_bench.datasets.obstacles import TriangleMeshObstacle
 from clods_bench.datasets.types import ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
 
@@ -103,10 +105,11 @@ class PhysicsSimulator:
         return {}
 
     def rest_mesh(self, inp: RolloutInput) -> ClothMesh:
-        """The rollout mesh with its 3D rest shape: the scene's mesh if it matches, else the flat flag (u, 0, v)."""
-        mesh = scene_rest_mesh(self.scene, inp.cells, inp.mesh_pos)
-        rest = mesh.rest_pos if mesh is not None else flat_rest_pos(inp.mesh_pos)
-        return ClothMesh(np.asarray(inp.cells, np.int32), np.asarray(inp.mesh_pos, np.float32), np.asarray(inp.node_type, np.int32), rest)
+        """The rollout's cloth mesh (obstacle nodes left out) with its 3D rest shape: the scene's if it matches, else the flat flag (u, 0, v)."""
+        part = split_cloth(inp.cells, inp.mesh_pos, inp.node_type)
+        mesh = scene_rest_mesh(self.scene, part.cells, part.mesh_pos)
+        rest = mesh.rest_pos if mesh is not None else flat_rest_pos(part.mesh_pos)
+        return ClothMesh(part.cells, np.asarray(part.mesh_pos, np.float32), np.asarray(part.node_type, np.int32), rest)
 
     def _solver(self, inp: RolloutInput, h: float) -> ClothSolver:
         key = tuple(hash(np.ascontiguousarray(a).tobytes()) for a in (inp.cells, inp.mesh_pos, inp.node_type)) + (h,)
@@ -115,19 +118,28 @@ class PhysicsSimulator:
         return self._solvers[key]
 
     def rollout(self, inp: RolloutInput) -> np.ndarray:
-        """(T,V,3) float32 frames from frames 0 and 1, kinematic nodes as prescribed."""
+        """(T,V,3) float32 frames from frames 0 and 1, kinematic nodes as prescribed.
+
+        Obstacle nodes (a scene with obstacles) are not simulated: their recorded surface, interpolated between
+        frames, is the solver's obstacle (`TriangleMeshObstacle.from_frames`), so contact is the ground truth's."""
         cfg = self.config
         substeps = cfg.substeps if cfg.substeps is not None else int(getattr(self.scene, "substeps", 1))
         dt, k = float(inp.dt), cfg.dt_factor
-        kin_mask = inp.kinematic_mask
-        kin = np.asarray(inp.kinematic_pos, np.float64)[:, kin_mask]
+        part = split_cloth(inp.cells, inp.mesh_pos, inp.node_type)
+        cloth = part.nodes
+        kin_all = np.asarray(inp.kinematic_pos, np.float64)
+        handle_mask = inp.kinematic_mask[cloth]
+        kin = kin_all[:, cloth][:, handle_mask]
         solver = self._solver(inp, dt * k / substeps)
-        solver.handle_fn = _handle_interpolator(kin, dt) if kin_mask.any() else None
+        solver.handle_fn = _handle_interpolator(kin, dt) if handle_mask.any() else None
+        solver.obstacles = (
+            [TriangleMeshObstacle.from_frames(kin_all[:, part.obstacle_nodes], part.obstacle_faces, dt)] if part.obstacle_nodes.size else []
+        )
         solver.stats.update(cg_iterations=0, cg_residual_max=0.0, steps=0)
-        x0 = np.asarray(inp.init_pos[0], np.float64)
-        x = np.asarray(inp.init_pos[1], np.float64)
+        x0 = np.asarray(inp.init_pos[0], np.float64)[cloth]
+        x = np.asarray(inp.init_pos[1], np.float64)[cloth]
         v = (x - x0) / dt
-        out = np.empty((inp.num_frames, x.shape[0], 3), np.float64)
+        out = np.empty((inp.num_frames, inp.init_pos.shape[1], 3), np.float64)
         out[:2] = inp.init_pos
         frame = 1
         h = dt * k / substeps
@@ -138,8 +150,9 @@ class PhysicsSimulator:
                     x, v = solver.step(x, v, frame * dt + s * h)
                 for j in range(1, k + 1):
                     if frame + j < inp.num_frames:
-                        out[frame + j] = x_prev + (j / k) * (x - x_prev)
+                        out[frame + j, cloth] = x_prev + (j / k) * (x - x_prev)
                 frame += k
+        kin_mask = inp.kinematic_mask
         out[2:, kin_mask] = inp.kinematic_pos[2:, kin_mask]
         self.last_stats = {k2: float(v2) for k2, v2 in solver.stats.items()}
         return out.astype(np.float32)

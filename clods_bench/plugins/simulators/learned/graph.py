@@ -114,7 +114,8 @@ def build_topology(cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarra
     onehot = torch.nn.functional.one_hot(nt, NODE_TYPE_SIZE).to(torch.float32)
     v = int(nt.shape[0])
     sample = torch.zeros(v, dtype=torch.int64, device=device)
-    spacing = torch.full((v,), rest_spacing(np.asarray(mesh_pos)), dtype=torch.float32, device=device)
+    cloth = np.asarray(node_type) != OBSTACLE  # obstacle nodes all sit at one mesh_pos: they would make the spacing 0
+    spacing = torch.full((v,), rest_spacing(np.asarray(mesh_pos)[cloth]), dtype=torch.float32, device=device)
     return Topology(s, r, _rel_with_norm(mp[s] - mp[r]), onehot, nt == NORMAL, nt == OBSTACLE, mp, sample, spacing)
 
 
