@@ -115,26 +115,43 @@ class ObstaclePath:
 
 
 class Obstacle(abc.ABC):
-    """A rigid obstacle; subclasses are frozen dataclasses holding data only (picklable; hashed into dataset identity).
-
-    Analytic subclasses implement `_local_query` and `_local_surface` in their own frame; `query` and `surface`
-    translate by the path's offset and report the path's velocity."""
+    """A rigid obstacle; subclasses are frozen dataclasses holding data only (picklable; hashed into dataset identity)."""
 
     path: ObstaclePath | None = None  # every subclass declares it as a field
+
+    @abc.abstractmethod
+    def query(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For points x (N,3) at time t: signed distance (N,) to the surface (negative inside), unit outward normal
+        (N,3) at the closest surface point, and the obstacle's surface velocity (N,3) there."""
+
+    @abc.abstractmethod
+    def surface(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """A triangle mesh of the surface at t: vertices (M,3) float64, faces (F,3) int32, outward CCW; same topology at every t."""
+
+    def validate(self, where: str) -> None:
+        """ClodsError naming `where` and the field for out-of-range values."""
+        if self.path is not None:
+            if not isinstance(self.path, ObstaclePath):
+                raise ClodsError(f"is a {type(self.path).__name__}, expected an ObstaclePath or None", where=f"{where}.path")
+            self.path.validate(f"{where}.path")
+
+
+class MovingShape(Obstacle):
+    """An obstacle of fixed shape translated along its `path`: subclasses give the shape's signed distance and surface
+    in its own (unmoved) frame; `query` and `surface` translate by the path's offset and report the path's velocity."""
 
     def _offset(self, t: float) -> np.ndarray:
         return np.zeros(3) if self.path is None else self.path.offset(t)
 
     def query(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For points x (N,3) at time t: signed distance (N,) to the surface (negative inside), unit outward normal
-        (N,3) at the closest surface point, and the obstacle's surface velocity (N,3) there."""
+        """Signed distance, outward normal and surface velocity of points x (N,3) at time t (see `Obstacle.query`)."""
         x = _points(x)
         d, n = self._local_query(x - self._offset(t))
         vel = np.zeros((x.shape[0], 3)) if self.path is None else np.tile(self.path.velocity(t), (x.shape[0], 1))
         return d, n, vel
 
     def surface(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """A triangle mesh of the surface at t: vertices (M,3) float64, faces (F,3) int32, outward CCW; same topology at every t."""
+        """The shape's surface mesh translated to time t (see `Obstacle.surface`)."""
         verts, faces = self._local_surface()
         return verts + self._offset(t)[None, :], faces
 
@@ -145,13 +162,6 @@ class Obstacle(abc.ABC):
     @abc.abstractmethod
     def _local_surface(self) -> tuple[np.ndarray, np.ndarray]:
         """The surface mesh of the unmoved obstacle."""
-
-    def validate(self, where: str) -> None:
-        """ClodsError naming `where` and the field for out-of-range values."""
-        if self.path is not None:
-            if not isinstance(self.path, ObstaclePath):
-                raise ClodsError(f"is a {type(self.path).__name__}, expected an ObstaclePath or None", where=f"{where}.path")
-            self.path.validate(f"{where}.path")
 
 
 @functools.lru_cache(maxsize=8)
@@ -206,7 +216,7 @@ def _orient_outward(verts: np.ndarray, faces: np.ndarray, inner) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Sphere(Obstacle):
+class Sphere(MovingShape):
     """A ball; its surface mesh is an icosphere of `subdivisions` (2: 320 triangles)."""
 
     center: Vec3
@@ -238,7 +248,7 @@ def _perpendicular(e: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Capsule(Obstacle):
+class Capsule(MovingShape):
     """All points within `radius` of the segment a-b; surface: a 16-sided cylinder closed by two hemispheres (4 rings each)."""
 
     a: Vec3
@@ -299,7 +309,7 @@ class Capsule(Obstacle):
 
 
 @dataclass(frozen=True)
-class Box(Obstacle):
+class Box(MovingShape):
     """An axis-aligned box: exact signed distance; surface of 12 triangles."""
 
     center: Vec3
@@ -400,7 +410,7 @@ def _mesh_arrays(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 @dataclass(frozen=True, eq=False)
-class TriangleMeshObstacle(Obstacle):
+class TriangleMeshObstacle(MovingShape):
     """A rigid triangle mesh, outward CCW faces; closed meshes are solid, open ones are solid behind their faces."""
 
     vertices: np.ndarray  # (M,3)
@@ -484,12 +494,6 @@ class FrameMeshObstacle(Obstacle):
     def surface(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         pos, _ = self._state(t)
         return pos, np.array(self.faces, dtype=np.int32)
-
-    def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - query is overridden
-        raise NotImplementedError
-
-    def _local_surface(self) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - surface is overridden
-        raise NotImplementedError
 
     def validate(self, where: str) -> None:
         frames = np.asarray(self.frames)
