@@ -434,3 +434,21 @@ def test_bad_face_colours_are_one_clear_error():
         render(verts, cells, np.zeros((6, 2)), BLACK, cam, SS1, face_colors=np.zeros((3, 3)))
     with pytest.raises(ClodsError, match="face_colors.*in \\[0, 1\\]"):
         render(verts, cells, np.zeros((6, 2)), BLACK, cam, SS1, face_colors=np.full((4, 3), 2.0))
+
+
+def test_the_cloth_casts_its_shadow_on_a_flat_coloured_obstacle():
+    """Floor (flat colour, z = 3) under a textured square (z = 2, x in [-1.5, -0.5]) lit along d = (1, 0, 1)/sqrt(2):
+    the floor is shadowed exactly for x in [-0.5, 0.5] (the square shifted by the 1 m depth gap), i.e. pixel columns
+    13.3-18.7; lit floor elsewhere gets ambient + diffuse * |n . d|."""
+    cam = front_camera()
+    floor = unproject(cam, [[0, 0], [32, 0], [32, 32], [0, 32]], 3.0)
+    square = np.array([[-1.5, -4.0, 2.0], [-0.5, -4.0, 2.0], [-0.5, 4.0, 2.0], [-1.5, 4.0, 2.0]])
+    verts = np.concatenate([square, floor])
+    cells = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    colors = np.full((4, 3), np.nan)
+    colors[2:] = (0.5, 0.5, 0.5)
+    light = DirectionalLight(direction=(1.0, 0.0, 1.0), ambient=0.2, diffuse=0.8, shadow_map_size=256)
+    img = render(verts, cells, np.zeros((8, 2)), np.ones((2, 2, 3), np.float32), cam, RasterSettings(supersample=1, light=light), colors)
+    row = img[16, :, 0]
+    np.testing.assert_allclose(row[14:18], 0.5 * 0.2, atol=1e-6)  # in the square's shadow: ambient only
+    np.testing.assert_allclose(row[21:31], 0.5 * (0.2 + 0.8 / np.sqrt(2.0)), atol=1e-6)  # lit floor
