@@ -324,11 +324,11 @@ def test_cli_export_and_import(original: DatasetStore, tiny_root: Path, tmp_path
     caps = _captures(tmp_path / "nerf")
     assert [c.parent.name for c in caps] == ["traj_0000", "traj_0002"]
     assert main(["data", "import-video", *map(str, caps), "--out", str(tmp_path / "imp")]) == 0
-    assert "run on it with --set data.path=" in capsys.readouterr().out.replace("\n", "")
+    assert "run on it with --set data.path=" in " ".join(capsys.readouterr().out.split())  # rich wraps at any space
     imp = DatasetStore.open(tmp_path / "imp")
     assert np.array_equal(imp.load_frames(1), original.load_frames(2)) and imp.entry(1)["split"] == "test"
     _edit(caps[0], lambda d: d["frames"][0].pop("transform_matrix"))
     assert main(["data", "import-video", *map(str, caps), "--out", str(tmp_path / "imp2")]) == 2
     err = capsys.readouterr().err
-    assert "frames[0].transform_matrix: missing" in err.replace("\n", "") and not (tmp_path / "imp2").exists()
+    assert "frames[0].transform_matrix: missing" in " ".join(err.split()) and not (tmp_path / "imp2").exists()
     assert main(["data", "export", *sets, "--format", "obj", "--meshes", "ply", "--out", str(tmp_path / "o")]) == 2
