@@ -30,6 +30,7 @@ CUTOFF2 = 9.0  # rho <= 3^2
 FILTER_INV_SQUARE = 2.0  # 1 / (sqrt(2)/2)^2
 DIST_NEAR, DIST_FAR = 0.2, 100.0
 N_OUT = 10
+PARALLEL_EPS = 1e-9
 N_GRAD = 19  # M row-major (9), projected centre (2), centre depth, normal (3), colour (3), opacity
 
 
@@ -49,7 +50,9 @@ def _eval(px, py, Mg, mx, my, zc, o, near):
     u = 0.0
     v = 0.0
     zh = 0.0
-    if p2 != 0.0:
+    kn = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
+    ln = math.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+    if abs(p2) > PARALLEL_EPS * kn * ln:
         u = p0 / p2
         v = p1 / p2
         zh = u * Mg[6] + v * Mg[7] + Mg[8]
