@@ -50,8 +50,9 @@ def _eval(px, py, Mg, mx, my, zc, o, near):
     u = 0.0
     v = 0.0
     zh = 0.0
-    kn = math.sqrt(k0 * k0 + k1 * k1 + k2 * k2)
-    ln = math.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+    nw = math.sqrt(Mg[6] * Mg[6] + Mg[7] * Mg[7] + Mg[8] * Mg[8])
+    kn = abs(px) * nw + math.sqrt(Mg[0] * Mg[0] + Mg[1] * Mg[1] + Mg[2] * Mg[2])  # |k| before cancellation
+    ln = abs(py) * nw + math.sqrt(Mg[3] * Mg[3] + Mg[4] * Mg[4] + Mg[5] * Mg[5])
     if abs(p2) > PARALLEL_EPS * kn * ln:
         u = p0 / p2
         v = p1 / p2

@@ -15,8 +15,9 @@ Conventions (cameras as in `clods_bench.datasets.cameras`: OpenCV, x_cam = R x +
 - per view, M = K [R | t] H (3x3) maps local homogeneous (u, v, 1) to pixel homogeneous (x w, y w, w),
   H = [[s_u t_u, s_v t_v, p], [0, 0, 1]]; rows Tu, Tv, Tw. A pixel (x, y) intersects the two planes
   k = x Tw - Tu, l = y Tw - Tv: (u, v) = (p0 / p2, p1 / p2) for p = k x l (2DGS eq. 8-10); the hit's
-  camera z is Tw . (u, v, 1). The 3D branch is invalid where |p2| <= 1e-9 |k| |l| (the ray runs along
-  or inside the plane: 2DGS only tests p2 = 0, which rounding defeats) or the hit is not beyond `near`;
+  camera z is Tw . (u, v, 1). The 3D branch is invalid where |p2| <= 1e-9 (|x| |Tw| + |Tu|) (|y| |Tw| + |Tv|)
+  (the ray runs along or inside the plane: 2DGS only tests p2 = 0, which rounding defeats) or the hit is
+  not beyond `near`;
 - rho3d = u^2 + v^2, rho2d = 2 |pixel - projected centre|^2 (low-pass filter, sigma = sqrt(2)/2 px);
   rho = min of the two; alpha = min(0.99, opacity exp(-rho / 2)); a surfel contributes only where
   rho <= 9 (its 3-sigma footprint, which is what the 3-sigma bounding box of 2DGS bins) and alpha >= 1/255,
@@ -67,7 +68,7 @@ MEDIAN_T = 0.5
 DIST_NEAR, DIST_FAR = 0.2, 100.0  # 2DGS's depth mapping for the distortion term
 BOX_MARGIN = 1e-3  # px added to every bounding box (rounding guard; the per-pixel rule decides)
 TILE = 16
-PARALLEL_EPS = 1e-9  # the 3D branch needs |p2| > this * |k| |l| (else the ray runs (nearly) inside the plane)
+PARALLEL_EPS = 1e-9  # the 3D branch needs |p2| > this * (|x| |Tw| + |Tu|) (|y| |Tw| + |Tv|) (else the ray runs in the plane)
 N_OUT = 10  # per-pixel raster outputs: colour (3), alpha, accumulated depth, normal (3), distortion, median depth
 
 
@@ -174,7 +175,9 @@ def intersect_reference(pix: Tensor, M: Tensor, near: float) -> tuple[Tensor, Te
     l = pix[:, 1, None, None] * Tw[None] - Tv[None]
     p = torch.linalg.cross(k, l, dim=-1)
     with torch.no_grad():  # ray (nearly) parallel to, or inside, the plane: no usable hit
-        ok = p[..., 2].abs() > PARALLEL_EPS * k.norm(dim=-1) * l.norm(dim=-1)
+        kn = pix[:, 0, None].abs() * Tw.norm(dim=-1)[None] + Tu.norm(dim=-1)[None]  # |k| before cancellation
+        ln = pix[:, 1, None].abs() * Tw.norm(dim=-1)[None] + Tv.norm(dim=-1)[None]
+        ok = p[..., 2].abs() > PARALLEL_EPS * kn * ln
     p2 = torch.where(ok, p[..., 2], torch.ones_like(p[..., 2]))
     u, v = p[..., 0] / p2, p[..., 1] / p2
     z = u * Tw[None, :, 0] + v * Tw[None, :, 1] + Tw[None, :, 2]
