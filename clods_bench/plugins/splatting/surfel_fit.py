@@ -113,7 +113,7 @@ def fit_surfels(
     lr_colors: float = 5e-2,
     lambda_dssim: float = 0.2,
     lambda_normal: float = 0.05,
-    lambda_dist: float = 10.0,
+    lambda_dist: float = 10.0,  # the |m_i - m_j| distortion of 2DGS-mapped depths is O(1e-3) per pixel here
     regularize_from: float = 0.3,
     init_opacity: float = 0.1,
     prune_opacity: float = 1.0 / 255.0,
