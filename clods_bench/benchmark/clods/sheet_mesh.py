@@ -10,16 +10,19 @@ learned cloth simulator needs one open manifold sheet with a chosen number of no
 2. a regular (u, v) grid over the points' extent, its spacing chosen (a few fixed-point iterations) so the kept
    part has about `num_nodes` nodes; a grid cell is kept when points fall in it: a 2D occupancy mask, closed
    morphologically (gaps between sparse points), reduced to its largest 4-connected component, and completed
-   where two kept cells touch only at a corner (a node joining two fans is not manifold);
+   where two kept cells touch only at a corner (a node joining two fans is not manifold); the mask's edge is a
+   staircase, so boundary nodes further than the point spacing from every point are pulled onto the points'
+   boundary (by at most one cell, never thinning a triangle below 15 % of its area);
 3. each node's height from the points within `radius` of it in (u, v): a weighted least-squares quadratic
    (linear, then the median, when few points) after dropping points further than 3 robust deviations from the
    local median: the mid-surface of a two-sided shell, with no curvature bias;
 4. kept cells split along alternating diagonals (like `make_flag_mesh`), counter-clockwise in (u, v);
 5. `rest_pos` = the 3D nodes; `mesh_pos` = a geodesic-preserving flattening: the 2D layout whose edge lengths
    best match the 3D rest edges (nonlinear least squares started from the (u, v) grid, so it stays a valid
-   embedding). Not `mesh_io.flatten_rest`: its plane projection shortens edges by cos(slope) (11 % on a flag
-   bent 30 degrees), which a simulator would read as a pre-stretched cloth. A developable sheet (any bent, unfolded
-   cloth) flattens with edges kept to rounding; a doubly curved one keeps the least-squares compromise;
+   embedding). Not `mesh_io.flatten_rest`: its plane projection shortens edges by cos(slope) (13 % where a
+   flag is tilted 30 degrees from the plane), which a simulator would read as a pre-stretched cloth. A developable
+   sheet (any bent, unfolded cloth) flattens with edges kept to rounding; a doubly curved one keeps the
+   least-squares compromise;
 6. every node NORMAL; `handles_from_tracks` + `with_handles` mark the pinned nodes from meshes tracked over the
    first frames.
 
@@ -146,9 +149,11 @@ def _signed_areas(uv: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
 
 
-def _snap_boundary(uv: np.ndarray, nodes_uv: np.ndarray, cells: np.ndarray, cell: float) -> np.ndarray:
-    """Boundary nodes further than the point spacing from every point move towards the nearest point (at most 0.6
-    cell), as long as no triangle keeps less than a quarter of its area; interior nodes stay."""
+def _snap_boundary(
+    uv: np.ndarray, nodes_uv: np.ndarray, cells: np.ndarray, cell: float, max_move: float = 1.0, min_area: float = 0.15
+) -> np.ndarray:
+    """Boundary nodes further than the point spacing from every point move towards the nearest point (by at most
+    `max_move` cells), as long as every triangle keeps `min_area` of its area; interior nodes stay."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(uv)
@@ -161,13 +166,13 @@ def _snap_boundary(uv: np.ndarray, nodes_uv: np.ndarray, cells: np.ndarray, cell
     b, q, dist = boundary[far], uv[idx[far]], dist[far]
     if b.size == 0:
         return nodes_uv
-    step = np.minimum(dist - spacing, 0.6 * cell)[:, None] * (q - nodes_uv[b]) / dist[:, None]
+    step = np.minimum(dist - spacing, max_move * cell)[:, None] * (q - nodes_uv[b]) / dist[:, None]
     area0 = _signed_areas(nodes_uv, cells)
     out = nodes_uv.copy()
     scale = np.ones(b.size)
     for _ in range(6):  # halve the moves of nodes whose triangles would get too thin
         out[b] = nodes_uv[b] + scale[:, None] * step
-        thin = _signed_areas(out, cells) < 0.25 * area0
+        thin = _signed_areas(out, cells) < min_area * area0
         if not thin.any():
             return out
         bad_nodes = np.unique(cells[thin])
