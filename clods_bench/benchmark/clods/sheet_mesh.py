@@ -15,7 +15,8 @@ learned cloth simulator needs one open manifold sheet with a chosen number of no
    boundary (by at most one cell, never thinning a triangle below 15 % of its area);
 3. each node's height from the points within `radius` of it in (u, v): a weighted least-squares quadratic
    (linear, then the median, when few points) after dropping points further than 3 robust deviations from the
-   local median: the mid-surface of a two-sided shell, with no curvature bias;
+   local median, clamped to the kept heights' range (no wild extrapolation at the boundary): the mid-surface of a
+   two-sided shell, with no curvature bias;
 4. kept cells split along alternating diagonals (like `make_flag_mesh`), counter-clockwise in (u, v);
 5. `rest_pos` = the 3D nodes; `mesh_pos` = a geodesic-preserving flattening: the 2D layout whose edge lengths
    best match the 3D rest edges (nonlinear least squares started from the (u, v) grid, so it stays a valid
@@ -140,7 +141,8 @@ def _heights(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float)
             continue
         sw = np.sqrt(w)
         coef, _, rank, _ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
-        out[i] = coef[0] if rank == A.shape[1] else np.median(y)
+        # clamped to the neighbours' range: a one-sided neighbourhood (a boundary node) must not extrapolate wildly
+        out[i] = np.clip(coef[0], y.min(), y.max()) if rank == A.shape[1] else np.median(y)
     return out
 
 
@@ -283,6 +285,8 @@ def sheet_from_points(
     rest = centre + grid_uv[:, :1] * axes[0] + grid_uv[:, 1:] * axes[1] + heights[:, None] * axes[2]
 
     mesh_pos = flatten_geodesic(rest, cells, grid_uv - grid_uv.min(axis=0))
+    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout (very noisy heights): keep the plane's
+        mesh_pos = grid_uv - grid_uv.min(axis=0)
     mesh_pos -= mesh_pos.min(axis=0)
     mesh = ClothMesh(cells.astype(np.int32), mesh_pos.astype(np.float32), np.full(keep.size, NORMAL, np.int32), rest)
     validate_cloth_mesh(mesh, "sheet_from_points", has_handles=False)

@@ -224,6 +224,14 @@ def test_sheet_from_points_on_the_simulated_flag(flag_run: dict) -> None:
         assert stats["node_max"] < 0.04 and stats["node_mean"] < 0.01, (num, stats)
 
 
+def test_sheet_from_noisy_points_stays_on_the_cloth(flag_run: dict) -> None:
+    x0, cells = flag_run["frames"][0], flag_run["mesh"].cells
+    pts = sample_surface(x0, cells, 30000) + np.random.default_rng(1).normal(scale=0.005, size=(30000, 3))
+    for num in (128, 1579):
+        stats = check_sheet(sheet_from_points(pts, num), x0, cells, num, 2.0)
+        assert stats["node_mean"] < 0.005 and stats["node_max"] < 0.05 and stats["rmse"] < 0.01, (num, stats)
+
+
 def test_sheet_from_a_two_sided_shell_finds_the_mid_surface() -> None:
     verts, cells = cylinder_sheet()
     pts = sample_surface(verts, cells, 30000)
