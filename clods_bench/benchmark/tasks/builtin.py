@@ -9,6 +9,7 @@ from clods_bench.benchmark.tasks.cdg import run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
 from clods_bench.benchmark.tasks.dvc_multi import run_dvc_multi
 from clods_bench.benchmark.tasks.extract import run_extract
+from clods_bench.benchmark.tasks.initial_mesh import run_initial_mesh
 from clods_bench.benchmark.tasks.nvs import run_nvs
 from clods_bench.benchmark.tasks.stability import run_stability
 
@@ -50,5 +51,10 @@ def clods_bench_tasks() -> list[TaskSpec]:
             description="Mesh extraction (CloDS stages 1-2): E-GT, RMSE of the meshes recovered from video against the truth (ablations).",
             run=run_extract,
             needs=("renderer",),
+        ),
+        TaskSpec(
+            name="initial_mesh",
+            description="Initial mesh (CloDS stage 0): 2DGS + TSDF + sheet mesh from frame 0's training views; attached-point RMSE and Chamfer against the true mesh.",
+            run=run_initial_mesh,
         ),
     ]
