@@ -13,6 +13,7 @@ from clods_bench.errors import ClodsError
 Variant = Literal["scratch", "finetune"]
 InitNoise = Literal["none", "gaussian", "translation", "scaling"]
 StartGuess = Literal["previous", "velocity", "simulator"]
+InitialMesh = Literal["truth", "reconstructed"]
 WHERE = "task_config.clods"
 
 
@@ -26,6 +27,12 @@ class ClodsConfig:
     init_noise: InitNoise = "none"
     """Initial mesh given to stages 1-2: the ground truth ('none', as in the paper's experiments) or it with one of
     the paper's robustness noises (appendix table 'CDR under different noise conditions')."""
+    initial_mesh: InitialMesh = "truth"
+    """'truth': stages 1-2 start from the true frame-0 mesh (with `init_noise`); 'reconstructed': from the mesh stage 0
+    rebuilds from frame 0's images alone (`clods.stage0`: its own topology per video, the pinned edge found from the
+    extracted motion, `clods.reconstructed`)."""
+    stage0: dict[str, Any] = field(default_factory=dict)
+    """initial_mesh=reconstructed: options of stage 0 (`Stage0Config` fields, as `task_config.initial_mesh`)."""
     gaussian_variance: float = 0.001
     """'gaussian': variance (m^2) of the zero-mean noise added to every node (paper: 0.001)."""
     translation_variance: float = 0.001
@@ -91,6 +98,11 @@ class ClodsConfig:
                 f"start=simulator predicts each frame with the pretrained simulator, which only variant=finetune trains (variant is '{self.variant}')",
                 where=f"{WHERE}.start", hint="add task_config.clods.variant=finetune, or use start=velocity",
             )  # fmt: skip
+        if self.initial_mesh == "reconstructed":
+            if self.init_noise != "none":
+                raise ClodsError("the reconstructed initial mesh takes no ground-truth noise", where=f"{WHERE}.init_noise", hint="leave it at 'none'")
+            if self.start == "simulator":
+                raise ClodsError("start=simulator predicts on the true mesh's topology, not the reconstructed one's", where=f"{WHERE}.start")
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads}", where=f"{WHERE}.num_threads")
 
@@ -100,6 +112,9 @@ class ClodsConfig:
         for key in ("variant", "cache_dir", "num_threads", "sim_overrides", "extraction_seed"):
             d.pop(key)
         d["scale_range"] = list(d["scale_range"])
+        if self.initial_mesh == "truth":  # keys of extractions from the true mesh stay what they were
+            for key in ("initial_mesh", "stage0"):
+                d.pop(key)
         return d
 
 

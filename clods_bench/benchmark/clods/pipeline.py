@@ -25,6 +25,7 @@ from clods_bench.benchmark.clods.predict import OneStepPredictor
 from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, train_simulator
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.interfaces import Simulator
+from clods_bench.benchmark.cross_topology import attach, attached_rmse
 from clods_bench.benchmark.metrics import rmse_per_step
 from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
@@ -122,6 +123,12 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
     seed = extraction_seed(ctx, opts)
     gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
     videos = [store.frames(i)[:frames, views] for i in train_ids]  # decodes only these cameras' first frames
+    if opts.initial_mesh == "reconstructed":  # stage 0 per video: its own topology, stage 1 per video
+        from clods_bench.benchmark.clods.reconstructed import extract_reconstructed
+
+        identity = extraction_identity("per-video", opts, cfg.data.identity(), frames, views)
+        meshes, stats, egt, key = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed)
+        return Extraction(meshes, gts, stats, egt, key)
     initial = np.stack([initial_mesh(g.world_pos[0], opts, seed, i) for g, i in zip(gts, train_ids)])
 
     renderer, stats, stage1_key = fit_stage1_keyed(ctx, initial, gts[0].cells, gts[0].mesh_pos, np.stack([v[0] for v in videos]), cams)
@@ -191,9 +198,14 @@ def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequ
         inp = RolloutInput.from_trajectory(gt, gt.num_steps)
         pred = check_rollout(sim.rollout(inp), inp, "clods")
         nodes = cloth_nodes(gt.node_type)
-        curves["E-GT"].append(rmse_per_step(ext.world_pos, gt.world_pos, nodes))
         curves["P-GT"].append(rmse_per_step(pred, gt.world_pos, nodes))
-        curves["P-E"].append(rmse_per_step(pred, ext.world_pos, nodes))
+        if ext.world_pos.shape == gt.world_pos.shape:
+            curves["E-GT"].append(rmse_per_step(ext.world_pos, gt.world_pos, nodes))
+            curves["P-E"].append(rmse_per_step(pred, ext.world_pos, nodes))
+        else:  # a reconstructed mesh: the true nodes attached to it at frame 0 and carried by it
+            att = attach(np.asarray(gt.world_pos[0], np.float64), np.asarray(ext.world_pos[0], np.float64), ext.cells)
+            curves["E-GT"].append(attached_rmse(ext.world_pos, ext.cells, att, gt.world_pos))
+            curves["P-E"].append(attached_rmse(ext.world_pos, ext.cells, att, pred))
     return {k: np.mean(np.stack(v), axis=0).tolist() for k, v in curves.items() if v}
 
 

@@ -64,7 +64,8 @@ def run_extract(ctx: TaskContext) -> TaskResult:
     ext = extract_meshes(ctx, ids)
     egt = ext.egt  # (B, frames); frame 0 is the given initial mesh
     half = max(1, egt.shape[1] // 2)
-    strain = [_max_strain(m.world_pos, t.world_pos[0], t.cells) for m, t in zip(ext.meshes, ext.truth)]
+    same = [m.world_pos.shape[1:] == t.world_pos.shape[1:] for m, t in zip(ext.meshes, ext.truth)]  # else a reconstructed mesh
+    strain = [_max_strain(m.world_pos, t.world_pos[0] if s else m.world_pos[0], m.cells) for m, t, s in zip(ext.meshes, ext.truth, same)]
     metrics = {
         "egt_avg": float(egt[:, 1:].mean()),
         "egt_end": float(egt[:, -1].mean()),
@@ -84,8 +85,8 @@ def run_extract(ctx: TaskContext) -> TaskResult:
     }
     curves = {"egt": egt.mean(axis=0).tolist()}
     label = ctx.config.label or "extracted"
-    save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", ext.truth[0].cells, {"extracted (stage 2)": ext.meshes[0].world_pos},
-                     truth=ext.truth[0].world_pos, title=f"{label}: meshes extracted from video {ids[0]}, seed {ctx.seed}")  # fmt: skip
+    save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", ext.meshes[0].cells, {"extracted (stage 2)": ext.meshes[0].world_pos},
+                     truth=ext.truth[0].world_pos if same[0] else None, title=f"{label}: meshes extracted from video {ids[0]}, seed {ctx.seed}")  # fmt: skip
     extra = {"trajectories": list(ids), "egt_per_trajectory": {str(i): float(c[1:].mean()) for i, c in zip(ids, egt)}, "cache": ext.key}
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
 

@@ -79,3 +79,41 @@ def test_bad_input_is_one_clear_error():
         reconstruct_initial_mesh(np.ones((3, 16, 16, 3)), cams, Stage0Config(), 20)
     with pytest.raises(ClodsError, match=r"task_config.initial_mesh.iterations"):
         Stage0Config(iterations=0).validate()
+
+
+def test_the_pinned_edge_is_the_side_that_moves_least():
+    """A 9 x 5 flag swinging about its pole (x = 0) while its material coordinates are turned and mirrored (a
+    flattening's orientation is arbitrary): the pole's 5 nodes are found, and `orient_material_coords` puts them at
+    u = 0 with v growing upwards."""
+    from clods_bench.benchmark.clods.reconstructed import detect_handles, orient_material_coords
+
+    flag = make_flag_mesh(9, 5, 2.0, 1.0)
+    x0 = flag.rest_pos
+    frames = []
+    for t in range(8):  # rotation about the pole (the z axis through x = 0) by a growing angle, plus a flutter
+        a = 0.1 * t
+        rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        x = x0 @ rot.T
+        x[:, 1] += 0.05 * t * x0[:, 0] ** 2
+        frames.append(x)
+    frames = np.stack(frames)
+    turn = np.array([[0.0, -1.0], [-1.0, 0.0]])  # swap and mirror the axes
+    mp = flag.mesh_pos @ turn.T + 3.0
+    pole = np.flatnonzero(x0[:, 0] == 0.0)
+    np.testing.assert_array_equal(np.sort(detect_handles(frames, mp, flag.cells)), pole)
+    uv = orient_material_coords(mp, pole, x0)
+    np.testing.assert_allclose(uv, flag.mesh_pos, atol=1e-5)
+    with pytest.raises(ClodsError, match="does not move"):
+        detect_handles(np.repeat(x0[None], 4, axis=0), mp, flag.cells)
+
+
+def test_reconstructed_initial_mesh_options_are_checked():
+    from clods_bench.benchmark.clods.config import ClodsConfig
+
+    with pytest.raises(ClodsError, match="task_config.clods.init_noise"):
+        ClodsConfig(initial_mesh="reconstructed", init_noise="gaussian").validate()
+    with pytest.raises(ClodsError, match="task_config.clods.start"):
+        ClodsConfig(initial_mesh="reconstructed", start="simulator", variant="finetune").validate()
+    truth = ClodsConfig().extraction_identity()
+    assert "initial_mesh" not in truth and "stage0" not in truth  # extractions from the truth keep their cache keys
+    assert ClodsConfig(initial_mesh="reconstructed").extraction_identity()["initial_mesh"] == "reconstructed"
