@@ -12,18 +12,18 @@ example one reconstructed from the first frame's depth maps by `clods.sheet_mesh
 - Chamfer: `chamfer` / `chamfer_per_frame` compare two point sets (vertices, or points sampled on the surfaces)
   with no correspondence at all: the shape error only.
 
-Closest points are computed exactly (Ericson's Voronoi-region test per triangle) by a numba kernel, brute force
-over the faces, pruned by each face's bounding sphere against the best distance found so far: exact, and fast at
-the sizes here (thousands of points x thousands of faces).
+Closest points are computed exactly (Ericson's Voronoi-region test per triangle) by the triangle-mesh obstacle's
+numba kernel (`datasets.obstacle_kernels.closest_points`), brute force over the faces pruned by their bounding
+boxes: exact, and fast at the sizes here (thousands of points x thousands of faces).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from clods_bench.datasets.obstacle_kernels import closest_points
 from clods_bench.errors import ClodsError
 
 
@@ -75,91 +75,21 @@ def _frames(arr: np.ndarray, where: str, num: int | None = None) -> np.ndarray:
     return a
 
 
-@numba.njit(cache=True)
-def closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[float, float, float]:
-    """Barycentric coordinates (u, v, w) of the point of triangle abc closest to p (Ericson, RTCD 5.1.5)."""
-    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
-    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    if d1 <= 0.0 and d2 <= 0.0:
-        return 1.0, 0.0, 0.0  # vertex a
-    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    if d3 >= 0.0 and d4 <= d3:
-        return 0.0, 1.0, 0.0  # vertex b
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        t = d1 / (d1 - d3) if d1 - d3 != 0.0 else 0.0
-        return 1.0 - t, t, 0.0  # edge ab
-    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    if d6 >= 0.0 and d5 <= d6:
-        return 0.0, 0.0, 1.0  # vertex c
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        t = d2 / (d2 - d6) if d2 - d6 != 0.0 else 0.0
-        return 1.0 - t, 0.0, t  # edge ac
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        den = (d4 - d3) + (d5 - d6)
-        t = (d4 - d3) / den if den != 0.0 else 0.0
-        return 0.0, 1.0 - t, t  # edge bc
-    den = va + vb + vc
-    if den <= 0.0:  # degenerate (zero-area) triangle not caught above: nearest vertex
-        return 1.0, 0.0, 0.0
-    v = vb / den
-    w = vc / den
-    return 1.0 - v - w, v, w  # interior
-
-
-@numba.njit(cache=True)
-def _attach_kernel(points, verts, faces, centres, radii, face_out, bary_out, dist_out):  # pragma: no cover - numba
-    n = points.shape[0]
-    nf = faces.shape[0]
-    for i in range(n):
-        p = points[i]
-        best = np.inf
-        bf = -1
-        bu, bv, bw = 1.0, 0.0, 0.0
-        for f in range(nf):
-            dx = p[0] - centres[f, 0]
-            dy = p[1] - centres[f, 1]
-            dz = p[2] - centres[f, 2]
-            lower = np.sqrt(dx * dx + dy * dy + dz * dz) - radii[f]  # no point of the face is nearer than this
-            if lower > 0.0 and lower * lower >= best:
-                continue
-            a, b, c = verts[faces[f, 0]], verts[faces[f, 1]], verts[faces[f, 2]]
-            u, v, w = closest_on_triangle(p, a, b, c)
-            qx = u * a[0] + v * b[0] + w * c[0] - p[0]
-            qy = u * a[1] + v * b[1] + w * c[1] - p[1]
-            qz = u * a[2] + v * b[2] + w * c[2] - p[2]
-            d2 = qx * qx + qy * qy + qz * qz
-            if d2 < best:
-                best, bf, bu, bv, bw = d2, f, u, v, w
-        face_out[i] = bf
-        bary_out[i, 0], bary_out[i, 1], bary_out[i, 2] = bu, bv, bw
-        dist_out[i] = np.sqrt(best)
-
-
 def attach(points: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> Attachment:
     """Bind each of `points` (N,3) to the closest point on the triangle mesh (`verts` (V,3), `faces` (F,3))."""
     p = _points(points, "points")
     v = _points(verts, "verts")
     f = _faces(faces, v.shape[0])
     tri = v[f]  # (F,3,3)
-    centres = tri.mean(axis=1)
-    radii = np.linalg.norm(tri - centres[:, None, :], axis=2).max(axis=1) * (1.0 + 1e-9) + 1e-12
-    face = np.empty(p.shape[0], dtype=np.int64)
-    bary = np.empty((p.shape[0], 3), dtype=np.float64)
-    dist = np.empty(p.shape[0], dtype=np.float64)
-    _attach_kernel(p, v, f, centres, radii, face, bary, dist)
+    n = p.shape[0]
+    foot = np.empty((n, 3), dtype=np.float64)
+    face = np.empty(n, dtype=np.int64)
+    bary = np.empty((n, 3), dtype=np.float64)
+    feature = np.empty(n, dtype=np.int64)
+    closest_points(np.ascontiguousarray(p), v, np.ascontiguousarray(f), tri.min(axis=1), tri.max(axis=1), foot, face, bary, feature)
     bary = np.clip(bary, 0.0, 1.0)
     bary /= bary.sum(axis=1, keepdims=True)
-    return Attachment(face, bary, dist)
+    return Attachment(face, bary, np.linalg.norm(p - foot, axis=1))
 
 
 def _check_attachment(att: Attachment, num_faces: int) -> None:

@@ -3,9 +3,10 @@
 `closest_point_triangle` is Ericson's Voronoi-region test ("Real-Time Collision Detection", 5.1.5): it
 returns the closest point's barycentric coordinates and which feature holds it (the face, one of the
 three edges, or one of the three corners), so the caller can sign the distance with the pseudo-normal
-of that feature (Baerentzen & Aanaes 2005). `closest_points` visits every face for every point but skips
-faces whose bounding box is farther than the best distance so far, starting from the previous point's
-face (cloth nodes come in spatially coherent order).
+of that feature (Baerentzen & Aanaes 2005); zero-area triangles get their nearest corner or edge point.
+`closest_points` visits every face for every point but skips faces whose bounding box is farther than the
+best distance so far, starting from the previous point's face (cloth nodes come in spatially coherent
+order). Both the obstacles and the cross-topology scoring (`benchmark.cross_topology.attach`) use it.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ def closest_point_triangle(p, a, b, c):
         return 0.0, 1.0, 0.0, VERTEX_B
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        s = d1 / (d1 - d3)
+        s = d1 / (d1 - d3) if d1 - d3 != 0.0 else 0.0
         return 1.0 - s, s, 0.0, EDGE_AB
     d5 = _dot3(ab0, ab1, ab2, p[0] - c[0], p[1] - c[1], p[2] - c[2])
     d6 = _dot3(ac0, ac1, ac2, p[0] - c[0], p[1] - c[1], p[2] - c[2])
@@ -45,12 +46,15 @@ def closest_point_triangle(p, a, b, c):
         return 0.0, 0.0, 1.0, VERTEX_C
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        s = d2 / (d2 - d6)
+        s = d2 / (d2 - d6) if d2 - d6 != 0.0 else 0.0
         return 1.0 - s, 0.0, s, EDGE_CA
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        s = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        den = (d4 - d3) + (d5 - d6)
+        s = (d4 - d3) / den if den != 0.0 else 0.0
         return 0.0, 1.0 - s, s, EDGE_BC
+    if va + vb + vc <= 0.0:  # a zero-area triangle the tests above did not catch: its first corner
+        return 1.0, 0.0, 0.0, VERTEX_A
     denom = 1.0 / (va + vb + vc)
     v = vb * denom
     w = vc * denom
