@@ -373,6 +373,15 @@ def _edge_ids(faces: np.ndarray) -> np.ndarray:
     return inverse.reshape(-1, 3)
 
 
+def _cached_edge_ids(obstacle: object) -> np.ndarray:
+    """`_edge_ids` of a frozen mesh obstacle's faces, computed once and kept on the instance."""
+    cached = obstacle.__dict__.get("_edge_id")
+    if cached is None:
+        cached = _edge_ids(np.asarray(obstacle.faces))  # type: ignore[attr-defined]
+        object.__setattr__(obstacle, "_edge_id", cached)
+    return cached
+
+
 def _mesh_query(x: np.ndarray, verts: np.ndarray, faces: np.ndarray, edge_id: np.ndarray):
     """Signed distance, outward normal, closest face and barycentrics of points x (N,3) on a triangle mesh."""
     tri = verts[faces]
@@ -418,11 +427,7 @@ class TriangleMeshObstacle(MovingShape):
     path: ObstaclePath | None = None
 
     def _edges(self) -> np.ndarray:
-        cached = self.__dict__.get("_edge_id")
-        if cached is None:
-            cached = _edge_ids(np.asarray(self.faces))
-            object.__setattr__(self, "_edge_id", cached)
-        return cached
+        return _cached_edge_ids(self)
 
     def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         verts, faces = _mesh_arrays(self.vertices, self.faces)
@@ -478,11 +483,7 @@ class FrameMeshObstacle(Obstacle):
         return pos, vel
 
     def _edges(self) -> np.ndarray:
-        cached = self.__dict__.get("_edge_id")
-        if cached is None:
-            cached = _edge_ids(np.asarray(self.faces))
-            object.__setattr__(self, "_edge_id", cached)
-        return cached
+        return _cached_edge_ids(self)
 
     def query(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = _points(x)

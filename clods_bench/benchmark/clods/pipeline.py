@@ -18,7 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from clods_bench.atomic import file_lock
 from clods_bench.benchmark.clods.cache import ExtractionCache, digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
-from clods_bench.benchmark.clods.extract import extract_trajectory
+from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.noise import initial_mesh
 from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.predict import OneStepPredictor
@@ -150,19 +150,8 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
                 extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar, predict))
     stats["stage2_wall_seconds"] = time.perf_counter() - t0
 
-    seconds = np.concatenate([e.seconds[1:] for e in extracted])
-    iters = np.concatenate([e.iterations[1:] for e in extracted])
     egt = np.stack([rmse_per_step(e.world_pos, g.world_pos, cloth_nodes(g.node_type)) for e, g in zip(extracted, gts)])  # (B, frames)
-    stats.update({
-        "stage2_seconds": float(seconds.sum()),
-        "stage2_ms_per_frame": 1000.0 * float(seconds.mean()),
-        "stage2_iterations_per_frame": float(iters.mean()),
-        "stage2_frames": float(seconds.size),
-        "stage2_cached_trajectories": float(cached),
-        "egt_rmse": float(egt[:, 1:].mean()),
-        "egt_end": float(egt[:, -1].mean()),
-        "egt_initial": float(egt[:, 0].mean()),
-    })  # fmt: skip
+    stats.update(stage2_stats(extracted, egt, cached))
     meshes = [
         Trajectory(g.cells, g.mesh_pos, g.node_type, e.world_pos.astype(np.float32), g.dt, {**g.meta, "source": "clods stage 2", "cache": cache.key})
         for g, e in zip(gts, extracted)

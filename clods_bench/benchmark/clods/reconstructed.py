@@ -21,7 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from clods_bench.atomic import file_lock, write_npz
 from clods_bench.benchmark.clods.cache import ExtractionCache, digest
 from clods_bench.benchmark.clods.config import ClodsConfig
-from clods_bench.benchmark.clods.extract import extract_trajectory
+from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.stage0 import Stage0Config, reconstruct_initial_mesh
 from clods_bench.benchmark.clods.stage1 import cache_root, fit_stage1_keyed
 from clods_bench.benchmark.config import dataclass_from_dict
@@ -137,19 +137,10 @@ def extract_reconstructed(
             meshes.append(Trajectory(mesh.cells, mesh_pos, node_type, ext.world_pos.astype(np.float32), g.dt, meta))
             att = attach(np.asarray(g.world_pos[0], np.float64), ext.world_pos[0].astype(np.float64), mesh.cells)
             egt.append(attached_rmse(ext.world_pos, mesh.cells, att, g.world_pos))
-    seconds = np.concatenate([e.seconds[1:] for e in extracted])
-    iters = np.concatenate([e.iterations[1:] for e in extracted])
     curves = np.stack(egt)
+    stats.update(stage2_stats(extracted, curves, cached))
     stats.update({
         "stage2_wall_seconds": time.perf_counter() - t0,
-        "stage2_seconds": float(seconds.sum()),
-        "stage2_ms_per_frame": 1000.0 * float(seconds.mean()),
-        "stage2_iterations_per_frame": float(iters.mean()),
-        "stage2_frames": float(seconds.size),
-        "stage2_cached_trajectories": float(cached),
-        "egt_rmse": float(curves[:, 1:].mean()),
-        "egt_end": float(curves[:, -1].mean()),
-        "egt_initial": float(curves[:, 0].mean()),
         "stage0_nodes": float(np.mean([m.num_nodes for m in meshes])),
         "stage0_handles": float(np.mean([int(np.sum(m.node_type == HANDLE)) for m in meshes])),
     })  # fmt: skip

@@ -110,15 +110,21 @@ def _alpha(px, py, mx, my, a, b, c, o):
     return alpha, sigma, dx, dy, raw <= ALPHA_MAX
 
 
+@njit(cache=True, nogil=True, inline="always")
+def tile_rect(t, per_cam, tiles_x, tile, width, height):
+    """Camera and pixel rectangle [x0, x1) x [y0, y1) of tile t of the binning (tiles numbered camera by camera, row-major)."""
+    cam, rem = t // per_cam, t % per_cam
+    x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
+    return cam, x0, y0, min(x0 + tile, width), min(y0 + tile, height)
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, ids, width, height, tile, tiles_x, tiles_y,
                out_rgb, out_alpha, out_depth, t_final, n_last):  # fmt: skip
     """Front-to-back compositing of every tile; fills the outputs and the state the backward needs."""
     per_cam = tiles_x * tiles_y
     for t in prange(offsets.shape[0] - 1):
-        cam, rem = t // per_cam, t % per_cam
-        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
-        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        cam, x0, y0, x1, y1 = tile_rect(t, per_cam, tiles_x, tile, width, height)
         tw = x1 - x0
         npx = tw * (y1 - y0)
         T = np.ones(npx)
@@ -174,9 +180,7 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
     """Back-to-front gradient pass; row k of g_isect (n_isect, N_GRAD) gets intersection k's gradient."""
     per_cam = tiles_x * tiles_y
     for t in prange(offsets.shape[0] - 1):
-        cam, rem = t // per_cam, t % per_cam
-        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
-        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        cam, x0, y0, x1, y1 = tile_rect(t, per_cam, tiles_x, tile, width, height)
         tw = x1 - x0
         npx = tw * (y1 - y0)
         T = np.empty(npx)

@@ -13,6 +13,7 @@ accumulated depth sum_i z_i w_i, with w_i = alpha_i T_i.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import torch
 from torch import Tensor
@@ -43,6 +44,27 @@ def composite_tile(pix: Tensor, means2d: Tensor, conics: Tensor, colors: Tensor,
     return torch.cat([w @ colors, w.sum(1, keepdim=True), w @ depths[:, None]], dim=1)
 
 
+
+def tile_walk(depths: Tensor, bounds: Tensor, width: int, height: int, tile: int) -> Iterator[tuple[int, Tensor, Tensor, Tensor]]:
+    """Every non-empty tile of every camera: (camera, its splats front to back (by `depths` (C,G)) whose tile box
+    `bounds` (C,G,4) [x0, y0, x1, y1) covers it, pixel centres (P,2) (u, v) float64, flat pixel indices (P,))."""
+    tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
+    order = torch.argsort(depths.detach(), dim=1, stable=True)  # (C,G) front to back
+    for cam in range(depths.shape[0]):
+        b = bounds[cam, order[cam]]  # (G,4) in depth order
+        for ty in range(tiles_y):
+            in_row = (b[:, 1] <= ty) & (ty < b[:, 3])
+            for tx in range(tiles_x):
+                members = order[cam][in_row & (b[:, 0] <= tx) & (tx < b[:, 2])]
+                if members.numel() == 0:
+                    continue
+                rows = torch.arange(ty * tile, min((ty + 1) * tile, height))
+                cols = torch.arange(tx * tile, min((tx + 1) * tile, width))
+                rr, cc = torch.meshgrid(rows, cols, indexing="ij")
+                pix = torch.stack([cc.reshape(-1), rr.reshape(-1)], dim=1).to(torch.float64) + 0.5
+                yield cam, members, pix, (cam * height + rr.reshape(-1)) * width + cc.reshape(-1)
+
+
 def rasterize_reference(
     means2d: Tensor,  # (C,G,2)
     conics: Tensor,  # (C,G,3)
@@ -60,28 +82,15 @@ def rasterize_reference(
         colour (C,H,W,3) without background, alpha (C,H,W,1), accumulated depth (C,H,W,1).
     """
     C = means2d.shape[0]
-    tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
-    order = torch.argsort(depths.detach(), dim=1, stable=True)  # (C,G) front to back
     values, index = [], []
-    for cam in range(C):
-        b = bounds[cam, order[cam]]  # (G,4) in depth order
-        for ty in range(tiles_y):
-            in_row = (b[:, 1] <= ty) & (ty < b[:, 3])
-            for tx in range(tiles_x):
-                members = order[cam][in_row & (b[:, 0] <= tx) & (tx < b[:, 2])]
-                if members.numel() == 0:
-                    continue
-                rows = torch.arange(ty * tile, min((ty + 1) * tile, height))
-                cols = torch.arange(tx * tile, min((tx + 1) * tile, width))
-                rr, cc = torch.meshgrid(rows, cols, indexing="ij")
-                pix = torch.stack([cc.reshape(-1), rr.reshape(-1)], dim=1).to(means2d.dtype) + 0.5  # (P,2) (u,v)
-                values.append(
-                    composite_tile(
-                        pix, means2d[cam, members], conics[cam, members], colors[cam, members],
-                        opacities[cam, members], depths[cam, members],
-                    )  # fmt: skip
-                )
-                index.append((cam * height + rr.reshape(-1)) * width + cc.reshape(-1))
+    for cam, members, pix, flat in tile_walk(depths, bounds, width, height, tile):
+        values.append(
+            composite_tile(
+                pix.to(means2d.dtype), means2d[cam, members], conics[cam, members], colors[cam, members],
+                opacities[cam, members], depths[cam, members],
+            )  # fmt: skip
+        )
+        index.append(flat)
     out = torch.zeros(C * height * width, 5, dtype=means2d.dtype)
     if values:
         out = out.index_copy(0, torch.cat(index), torch.cat(values))

@@ -22,6 +22,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from clods_bench.plugins.splatting.fast_kernels import tile_rect
+
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
@@ -91,9 +93,7 @@ def raster_fwd(Ms, means2d, depths, normals, colors, opac, boxes, offsets, ids, 
     """Front-to-back compositing of every pixel; fills out (C,H,W,N_OUT) and the backward's state."""
     per_cam = tiles_x * tiles_y
     for t in prange(offsets.shape[0] - 1):
-        cam, rem = t // per_cam, t % per_cam
-        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
-        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        cam, x0, y0, x1, y1 = tile_rect(t, per_cam, tiles_x, tile, width, height)
         start, n = offsets[t], offsets[t + 1] - offsets[t]
         ws = np.empty(n)
         ms = np.empty(n)
@@ -148,9 +148,7 @@ def raster_bwd(Ms, means2d, depths, normals, colors, opac, boxes, offsets, ids, 
     """Gradients of sum(v_out * out); row k of g_isect (n_isect, N_GRAD) gets intersection k's gradient."""
     per_cam = tiles_x * tiles_y
     for t in prange(offsets.shape[0] - 1):
-        cam, rem = t // per_cam, t % per_cam
-        x0, y0 = (rem % tiles_x) * tile, (rem // tiles_x) * tile
-        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        cam, x0, y0, x1, y1 = tile_rect(t, per_cam, tiles_x, tile, width, height)
         start, n = offsets[t], offsets[t + 1] - offsets[t]
         gt = np.zeros((n, N_GRAD))
         lk = np.empty(n, dtype=np.int64)

@@ -54,6 +54,7 @@ from clods_bench.errors import ClodsError
 from clods_bench.plugins.splatting.checks import background_tensor, check_cameras, check_finite, check_shape
 from clods_bench.plugins.splatting.projection import quat_to_rotmat
 from clods_bench.plugins.splatting.rasterize import camera_tensors
+from clods_bench.plugins.splatting.reference import tile_walk
 
 SurfelBackend = Literal["cpu", "reference"]
 BACKENDS = ("cpu", "reference")
@@ -225,29 +226,15 @@ def composite_surfels_reference(
 def raster_reference(proj: SurfelProjection, colors: Tensor, opac: Tensor, width: int, height: int, near: float) -> Tensor:
     """(C,H,W,N_OUT) raster outputs, tile by tile in torch (tiles only limit the work; results do not depend on them)."""
     C = proj.M.shape[0]
-    rects = torch.from_numpy(tile_rects(proj.boxes))
-    tiles_x, tiles_y = math.ceil(width / TILE), math.ceil(height / TILE)
-    order = torch.argsort(proj.depths.detach(), dim=1, stable=True)
     values, index = [], []
-    for cam in range(C):
-        b = rects[cam, order[cam]]
-        for ty in range(tiles_y):
-            in_row = (b[:, 1] <= ty) & (ty < b[:, 3])
-            for tx in range(tiles_x):
-                members = order[cam][in_row & (b[:, 0] <= tx) & (tx < b[:, 2])]
-                if members.numel() == 0:
-                    continue
-                rows = torch.arange(ty * TILE, min((ty + 1) * TILE, height))
-                cols = torch.arange(tx * TILE, min((tx + 1) * TILE, width))
-                rr, cc = torch.meshgrid(rows, cols, indexing="ij")
-                pix = torch.stack([cc.reshape(-1), rr.reshape(-1)], dim=1).to(torch.float64) + 0.5
-                values.append(
-                    composite_surfels_reference(
-                        pix, proj.M[cam, members], proj.means2d[cam, members], proj.depths[cam, members],
-                        proj.normals[cam, members], colors[members], opac[members], near,
-                    )  # fmt: skip
-                )
-                index.append((cam * height + rr.reshape(-1)) * width + cc.reshape(-1))
+    for cam, members, pix, flat in tile_walk(proj.depths, torch.from_numpy(tile_rects(proj.boxes)), width, height, TILE):
+        values.append(
+            composite_surfels_reference(
+                pix, proj.M[cam, members], proj.means2d[cam, members], proj.depths[cam, members],
+                proj.normals[cam, members], colors[members], opac[members], near,
+            )  # fmt: skip
+        )
+        index.append(flat)
     out = torch.zeros(C * height * width, N_OUT, dtype=torch.float64)
     if values:
         out = out.index_copy(0, torch.cat(index), torch.cat(values))
