@@ -42,7 +42,8 @@ def run_initial_mesh(ctx: TaskContext) -> TaskResult:
     store.require_meshes("task initial_mesh (scored against the true frame-0 mesh)")
     splits = split_spec(ctx)
     views = list(splits.train_views)
-    cameras = [store.cameras()[v] for v in views]
+    rig = store.cameras()
+    cameras = [rig[v] for v in views]
     ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
     rmse, cham, seconds, nodes, per_traj = [], [], [], [], {}
     sample = None
@@ -60,7 +61,7 @@ def run_initial_mesh(ctx: TaskContext) -> TaskResult:
         per_traj[str(i)] = {"attached_rmse": rmse[-1], "chamfer": cham[-1], "nodes": mesh.num_nodes, **stats}
         if sample is None:
             sample = (i, truth, mesh)
-    size = float(np.ptp(store.load_trajectory(ids[0]).world_pos[0], axis=0).max())
+    size = float(np.ptp(sample[1].world_pos[0], axis=0).max())  # the first video's cloth extent at frame 0
     metrics = {
         "attached_rmse": float(np.mean(rmse)),
         "attached_rmse_rel": float(np.mean(rmse)) / size,
@@ -68,9 +69,8 @@ def run_initial_mesh(ctx: TaskContext) -> TaskResult:
         "nodes": float(np.mean(nodes)),
     }
     timings = {"fit_seconds": float(np.sum(seconds)), "seconds_per_mesh": float(np.mean(seconds))}
-    if sample is not None:
-        i, truth, mesh = sample
-        save_mesh_sample(ctx.work_dir / "initial_mesh.npz", mesh.cells, {"reconstructed (stage 0)": mesh.rest_pos[None].astype(np.float32)},
-                         title=f"{cfg.label or 'stage 0'}: initial mesh from the frame-0 images of trajectory {i}, seed {ctx.seed}")  # fmt: skip
+    i, truth, mesh = sample
+    save_mesh_sample(ctx.work_dir / "initial_mesh.npz", mesh.cells, {"reconstructed (stage 0)": mesh.rest_pos[None].astype(np.float32)},
+                     title=f"{cfg.label or 'stage 0'}: initial mesh from the frame-0 images of trajectory {i}, seed {ctx.seed}")  # fmt: skip
     extra = {"trajectories": ids, "views": views, "per_trajectory": per_traj, "cloth_size": size}
     return TaskResult(metrics=metrics, timings=timings, curves={}, extra=extra)
