@@ -5,6 +5,7 @@ pipeline (clods/) and the tasks share them without importing one another."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,19 +51,25 @@ def build_simulator(ctx: TaskContext, scene_name: str | None = None) -> Simulato
     return sim
 
 
-def fit_on_meshes(ctx: TaskContext, sim: Simulator, store: DatasetStore, train_ids: list[int] | None = None) -> tuple[list[int], dict, float]:
+def fit_on_meshes(
+    ctx: TaskContext, sim: Simulator, store: DatasetStore, train_ids: list[int] | None = None, snapshot_every: int = 0,
+    identity_extra: dict | None = None,
+) -> tuple[list[int], dict, float, Path]:  # fmt: skip
     """Fit `sim` on the interpolation frames of the training meshes (all, or the first half for `train_subset`
-    first_half) in its content-addressed work directory; return (train_ids, fit statistics, wall seconds)."""
+    first_half) in its content-addressed work directory; return (train_ids, fit statistics, wall seconds, work dir).
+
+    `snapshot_every` is passed on to the fit (`FitContext`); `identity_extra` keys a separate work directory."""
     cfg, splits = ctx.config, split_spec(ctx)
     if train_ids is None:
         train_ids = list(splits.train if cfg.train_subset == "all" else splits.first_half)
     frames = splits.interp_steps + 1
     train = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
-    work = fit_work_dir(ctx, sim_fit_identity(ctx, train_ids, frames, supervision="mesh"))
+    work = fit_work_dir(ctx, sim_fit_identity(ctx, train_ids, frames, supervision="mesh", **(identity_extra or {})))
     t0 = time.perf_counter()
     with file_lock(work / "fit.lock"):  # a parallel job training the same fit: wait, then resume its finished checkpoint
-        stats = sim.fit(train, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
-    return list(train_ids), dict(stats), time.perf_counter() - t0
+        fit_ctx = FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress, snapshot_every=int(snapshot_every))
+        stats = sim.fit(train, fit_ctx) or {}
+    return list(train_ids), dict(stats), time.perf_counter() - t0, work
 
 
 def build_renderer(ctx: TaskContext) -> Renderer:

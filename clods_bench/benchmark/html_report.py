@@ -118,7 +118,7 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
     if not groups and not infer_html:
         raise ClodsError("no run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     written: list[Path] = [*infer_files]
-    if "cdg" in groups:
+    if "cdg" in groups or "stability" in groups:  # error-vs-time plots (cdg), training curves (stability)
         written += write_report(runs_dir, out_dir, metric or HEADLINE)
 
     parts = [f"<h1>clods-bench report</h1><p class='caption'>Records under <code>{html.escape(str(runs_dir.resolve()))}</code>, "
@@ -142,6 +142,9 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                                       (f"error_accumulation_{stem}.png", "CloDS rows, training videos: extraction vs truth, prediction vs truth, prediction vs extraction")):  # fmt: skip
                     if (out_dir / name).is_file():
                         parts.append(media_html(out_dir / name, caption))
+            if task == "stability" and (out_dir / f"training_curves_{scene}_{preset}.png").is_file():
+                parts.append(media_html(out_dir / f"training_curves_{scene}_{preset}.png",
+                                        "training curves: each weight snapshot's long rollouts scored like the final model (mean over seeds)"))  # fmt: skip
             if task == "extract":  # E-GT per frame, one line per setting
                 from clods_bench.benchmark.report import mean_curves, plot_curves
 

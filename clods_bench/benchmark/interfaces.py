@@ -64,11 +64,16 @@ class RolloutInput:
 
 @dataclass(frozen=True)
 class FitContext:
-    """Where and how a simulator trains: a working directory for checkpoints, a seed, a progress flag."""
+    """Where and how a simulator trains: a working directory for checkpoints, a seed, a progress flag.
+
+    `snapshot_every` > 0 asks a learned simulator to keep its weights every that many optimiser steps (and at
+    the last) as `snapshots/step_NNNNNNN.pt` in the work directory, for training curves; others ignore it.
+    """
 
     work_dir: Path
     seed: int
     progress: bool = True
+    snapshot_every: int = 0
 
 
 @runtime_checkable

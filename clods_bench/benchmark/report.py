@@ -17,6 +17,7 @@ import pandas as pd
 
 from clods_bench.atomic import atomic_path, write_text
 from clods_bench.benchmark.records import iter_records, load_seed_result
+from clods_bench.benchmark.training_curves import write_training_curves
 from clods_bench.errors import ClodsError
 
 HEADLINE = "unviewed/extrap/d_avg"
@@ -189,14 +190,15 @@ def plot_accumulation(curves: dict[str, dict[str, np.ndarray]], title: str, path
 
 
 def write_report(runs_dir: Path, out_dir: Path, metric: str = HEADLINE) -> list[Path]:
-    """Error-vs-time plots (PNG + CSV, Pareto front marked) and RMSE-per-frame curves per (scene, preset) of the CDG records."""
+    """Error-vs-time plots (PNG + CSV, Pareto front marked) and RMSE-per-frame curves per (scene, preset) of the CDG records,
+    and the training curves of stability records that have them."""
     groups: dict[tuple[str, str], list[tuple[Path, dict[str, Any]]]] = {}
     for rdir, rec in iter_records(Path(runs_dir), "cdg"):
         groups.setdefault((rec["scene"], rec["preset"]), []).append((rdir, rec))
-    if not groups:
-        raise ClodsError("no 'cdg' run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     out_dir = Path(out_dir)
-    written: list[Path] = []
+    written: list[Path] = write_training_curves(Path(runs_dir), out_dir)
+    if not groups and not written:
+        raise ClodsError("no 'cdg' run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     for (scene, preset), items in sorted(groups.items()):
         items.sort(key=lambda item: item[1]["label"])
         records = [rec for _, rec in items]

@@ -130,7 +130,7 @@ def train_simulator(
     else:
         store = DatasetStore.open(cfg.data.dataset_dir())
         sim = build_simulator(ctx)
-        _, stats, _ = fit_on_meshes(ctx, sim, store, train_ids)
+        _, stats, _, _ = fit_on_meshes(ctx, sim, store, train_ids)
     wall = time.perf_counter() - t0
     cost = max(wall, float(stats.get("cost_seconds", 0.0))) if mode == "video" else fit_cost_seconds(wall, stats)
     timings = {"sim_fit_seconds": cost, "sim_fit_wall_seconds": wall}

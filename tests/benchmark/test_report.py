@@ -121,3 +121,21 @@ def test_error_accumulation_of_clods_rows(tmp_path: Path) -> None:
     np.testing.assert_allclose(egt, [0.0, 0.02, 0.03])
     pgt = got[got["curve"] == "P-GT"]["rmse"].to_numpy()
     assert pgt[1] == pytest.approx(0.03) and np.isnan(pgt[2])
+
+
+def test_training_curves_from_stability_records(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    rdir = runs / "stability" / "mgn" / "flag-small-00000000"
+    curves = {0: {"step": [10, 20], "train_loss": [2.0, 1.0], "rmse": [0.4, 0.2], "max_strain": [3.0, 0.4],
+                  "diverged_fraction": [1.0, 0.0], "first_divergence": [9.0, None]},
+              1: {"step": [10, 20], "train_loss": [4.0, 3.0], "rmse": [0.6, 0.4], "max_strain": [5.0, 0.6],
+                  "diverged_fraction": [1.0, 0.5], "first_divergence": [7.0, 30.0]}}  # fmt: skip
+    for seed, curve in curves.items():
+        write_json(rdir / f"seed_{seed}" / "result.json", {"seed": seed, "metrics": {}, "extra": {"training_curve": curve}})
+    write_json(rdir / "record.json", {"task": "stability", "label": "MGN", "sim": "mgn", "scene": "flag", "preset": "small", "seeds": [0, 1]})
+    paths = write_report(runs, tmp_path / "report")  # no cdg records: the curves alone make a report
+    assert sorted(p.name for p in paths) == ["training_curves_flag_small.csv", "training_curves_flag_small.png"]
+    frame = pd.read_csv(tmp_path / "report" / "training_curves_flag_small.csv")
+    assert list(frame["seed"]) == [0, 0, 1, 1] and list(frame["step"]) == [10, 20, 10, 20]
+    np.testing.assert_allclose(frame.groupby("step")["rmse"].mean().to_numpy(), [0.5, 0.3])
+    assert np.isnan(frame["first_divergence"].iloc[1]) and frame["max_strain"].iloc[3] == 0.6

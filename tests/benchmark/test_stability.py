@@ -160,3 +160,51 @@ def test_monitors_against_brute_force() -> None:
     bad[4, 0, 1] = np.inf
     assert first_failure(bad, mon, 1e9, 1e30)[0].frame == 4
     assert first_failure(frames, mon, 1e9, 1e30)[0] is None
+
+
+MGN_TINY = ["sim_config.mgn.train_steps=30", "sim_config.mgn.warmup_steps=5", "sim_config.mgn.latent_size=16",
+            "sim_config.mgn.message_passing_steps=2", "sim_config.mgn.checkpoint_every=10"]  # fmt: skip
+
+
+def test_training_curve_scores_every_snapshot_and_ends_at_the_final_model(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:
+    runs = tmp_path / "runs"
+    plain = _run(tiny_root, runs, registry, "mgn", *MGN_TINY)  # trains the shared fit, without snapshots
+    rec = _run(tiny_root, runs, registry, "mgn", *MGN_TINY, "task_config.stability.curve_every=10")
+    curve = rec["per_seed"]["0"]["extra"]["training_curve"]
+    assert curve["step"] == [10.0, 20.0, 30.0]
+    # the fit finished without snapshots, so the curve trained its own copy: deterministic, the same final model
+    assert len(list((runs / "fit_cache").glob("mgn-*"))) == 2
+    for key in ("rmse", "max_strain", "diverged_fraction"):
+        final = rec["metrics"][key]["mean"]
+        assert final == plain["metrics"][key]["mean"] and curve[key][-1] == pytest.approx(final, nan_ok=True)
+    assert all(math.isfinite(v) for v in curve["train_loss"])
+    # a snapshot's point is the model of that step: scored again by hand with the step-10 weights
+    work = next(p for p in (runs / "fit_cache").glob("mgn-*") if (p / "snapshots").is_dir())
+    cfg = tiny_config(tiny_root, f"runs_dir={runs}", *MGN_TINY, sim="mgn", task="stability")
+    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes
+    from clods_bench.benchmark.descriptors import TaskContext
+
+    ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path / "w", registry=registry)
+    store = DatasetStore.open(cfg.data.dataset_dir())
+    sim = build_simulator(ctx)
+    fit_on_meshes(ctx, sim, store, snapshot_every=10, identity_extra={"snapshot_every": 10})
+    sim.use_snapshot(work / "snapshots" / "step_0000010.pt")
+    traj = store.load_trajectory(2)
+    frames = 2 * (traj.num_steps - 1) + 1
+    gt = simulate_scene(get_scene("flag"), get_scene("flag").build_mesh((6, 4)), frames, traj.meta["seed"]).world_pos
+    base = RolloutInput.from_trajectory(traj)
+    kin = np.full((frames, *base.kinematic_pos.shape[1:]), np.nan, np.float32)
+    kin[:, base.kinematic_mask] = gt[:, base.kinematic_mask]
+    from dataclasses import replace
+
+    pred = sim.rollout(replace(base, kinematic_pos=kin))
+    rmse = np.mean([np.sqrt(np.mean((pred[t].astype(np.float64) - gt[t]) ** 2)) for t in range(2, frames)]) if np.isfinite(pred).all() else float("nan")
+    assert math.isfinite(rmse) and curve["rmse"][0] == pytest.approx(rmse, rel=1e-5)
+
+
+def test_training_curve_needs_a_learned_simulator(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:
+    with pytest.raises(ClodsError, match="keeps no weight snapshots") as err:
+        _run(tiny_root, tmp_path / "runs", registry, "constvel", "task_config.stability.curve_every=10")
+    assert "task_config.stability.curve_every" in str(err.value)
+    with pytest.raises(ClodsError, match="curve_every"):
+        _run(tiny_root, tmp_path / "runs", registry, "mgn", "task_config.stability.curve_every=-1")

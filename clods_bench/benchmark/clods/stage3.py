@@ -67,7 +67,7 @@ def pretrain_simulator(ctx: TaskContext, pretrain_ids: Sequence[int]) -> Pretrai
     from clods_bench.datasets.store import DatasetStore
 
     pre = build_simulator(ctx)
-    ids, pre_stats, wall = fit_on_meshes(ctx, pre, DatasetStore.open(ctx.config.data.dataset_dir()), list(pretrain_ids))
+    ids, pre_stats, wall, _ = fit_on_meshes(ctx, pre, DatasetStore.open(ctx.config.data.dataset_dir()), list(pretrain_ids))
     stats = {"pretrain_seconds": wall, "pretrain_cost_seconds": fit_cost_seconds(wall, pre_stats)}
     stats.update({f"pretrain/{k}": float(v) for k, v in pre_stats.items()})
     identity = sim_fit_identity(ctx, ids, split_spec(ctx).interp_steps + 1, supervision="mesh")

@@ -50,7 +50,7 @@ def run_cdg(ctx: TaskContext) -> TaskResult:
     else:  # a simulator with nothing to learn (physics) is built for the scene it is rolled out on
         learned = ctx.registry.get("simulator", cfg.sim).learned
         sim = build_simulator(ctx, None if learned else scored.scene)
-        train_ids, fit_stats, fit_wall = fit_on_meshes(ctx, sim, store)
+        train_ids, fit_stats, fit_wall, _ = fit_on_meshes(ctx, sim, store)
         fit_seconds = fit_cost_seconds(fit_wall, fit_stats)
 
     groups = {"viewed": list(splits.viewed), "unviewed": list(splits.unviewed)}

@@ -13,8 +13,10 @@ horizons), and the run goes on with the next trajectory.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,6 +50,9 @@ class StabilityConfig:
     """Re-simulate the ground truth past the stored frames (else score only the monitors there)."""
     locate_exceptions: bool = True
     """Bisect over shorter horizons to find the frame at which a raising rollout fails."""
+    curve_every: int = 0
+    """> 0: a training curve: the learned simulator keeps its weights every this many steps, and each snapshot's
+    long rollouts are scored like the final model's (RMSE, max strain, divergence against training step)."""
 
     def validate(self, where: str = "task_config.stability") -> None:
         """Raise ClodsError naming the field that is out of range."""
@@ -55,6 +60,7 @@ class StabilityConfig:
             ("horizon_factor", self.horizon_factor >= 1.0),
             ("strain_threshold", self.strain_threshold > 0),
             ("energy_factor", self.energy_factor > 0),
+            ("curve_every", self.curve_every >= 0),
         ):
             if not ok:
                 raise ClodsError(f"value {getattr(self, name)!r} is out of range", where=f"{where}.{name}")
@@ -208,47 +214,33 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     sim = build_simulator(ctx)
     name = cfg.sim or "?"
 
-    train_ids, fit_stats, fit_wall = fit_on_meshes(ctx, sim, store)  # the CDG run's training, shared through the fit cache
+    if scfg.curve_every > 0:
+        train_ids, fit_stats, fit_wall, work, snaps = _fit_with_snapshots(ctx, sim, store, scfg.curve_every)
+    else:
+        train_ids, fit_stats, fit_wall, work = fit_on_meshes(ctx, sim, store)  # the CDG run's training, shared through the fit cache
+        snaps = []
     fit_seconds = fit_cost_seconds(fit_wall, fit_stats)
 
     frames = horizon_frames(splits.num_steps, scfg.horizon_factor)
-    per_traj: dict[str, dict[str, Any]] = {}
-    infer_seconds, infer_steps, extended = 0.0, 0, True
     ids = list(splits.unviewed)
-    with Progress(transient=True, disable=not cfg.progress) as bar:
-        job = bar.add_task(f"long rollouts ({name}, {frames} frames)", total=len(ids))
-        for i in ids:
-            stored = store.load_trajectory(i)
-            traj = stored.slice(0, splits.num_steps)
-            gt = long_ground_truth(ctx, scene, stored, i, frames) if scfg.extend_ground_truth else None
-            extended &= gt is not None and len(gt) >= frames
-            gt = gt if gt is not None else traj.world_pos
-            inp = long_input(traj, gt if len(gt) >= frames else None, frames)
-            t1 = time.perf_counter()
-            pred, exc_frame, message = safe_rollout(sim, inp, name, scfg.locate_exceptions)
-            infer_seconds += time.perf_counter() - t1
-            infer_steps += frames - 2
-            monitor = _monitor(scene, traj)
-            gt_energy = float(np.max(monitor.kinetic_energy(gt)))
-            result = watch(pred, gt, monitor, scfg, gt_energy, exc_frame, message)
-            result["gt_max_strain"] = float(np.max(monitor.max_strain(gt)[1:]))
-            per_traj[f"unviewed/{i}"] = result
-            if result["failure_frame"] is not None and cfg.progress:
-                Console(stderr=True).print(f"[yellow]{name}: trajectory {i} diverged at frame {result['failure_frame']}: {result['reason']}[/yellow]")
-            bar.advance(job)
+    curve_rows: list[dict[str, float]] = []
+    if snaps:
+        loss_of = _loss_at_step(work / f"{name}_train_log.json")
+        with Progress(transient=True, disable=not cfg.progress) as bar:
+            job = bar.add_task(f"training curve ({name}, {len(snaps)} snapshots)", total=len(snaps))
+            for step, path in snaps[:-1]:  # the last snapshot is the final model, scored below
+                sim.use_snapshot(path)
+                rows, _, _ = _long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=False)
+                curve_rows.append({"step": float(step), "train_loss": loss_of(step), **_summary(list(rows.values()), frames)})
+                bar.advance(job)
+        sim.use_snapshot(snaps[-1][1])
+    per_traj, infer_seconds, extended = _long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=cfg.progress)
+    infer_steps = (frames - 2) * len(ids)
 
     results = list(per_traj.values())
-    failed = [r["failure_frame"] for r in results if r["failure_frame"] is not None]
-    rmses = [r["rmse"] for r in results]
-    metrics = {
-        "rmse": float(np.mean(rmses)) if rmses else float("nan"),
-        "max_strain": float(np.nanmax([r["max_strain"] for r in results])) if results else float("nan"),
-        "gt_max_strain": float(max(r["gt_max_strain"] for r in results)) if results else float("nan"),
-        "max_energy_ratio": float(np.nanmax([r["max_energy_ratio"] for r in results])) if results else float("nan"),
-        "diverged_fraction": len(failed) / max(len(results), 1),
-        "first_divergence": float(min(failed)) if failed else float("nan"),
-        "horizon_frames": float(frames),
-    }
+    metrics = _summary(results, frames)
+    if snaps:
+        curve_rows.append({"step": float(snaps[-1][0]), "train_loss": _loss_at_step(work / f"{name}_train_log.json")(snaps[-1][0]), **metrics})
     timings = {"fit_seconds": fit_seconds, "fit_wall_seconds": fit_wall, "infer_ms_per_step": 1000.0 * infer_seconds / max(infer_steps, 1), "infer_seconds": infer_seconds}
     timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
     curves = {
@@ -265,5 +257,99 @@ def run_stability(ctx: TaskContext) -> TaskResult:
         "thresholds": {"strain": scfg.strain_threshold, "energy_factor": scfg.energy_factor},
         "train_ids": list(train_ids),
     }
+    if curve_rows:
+        extra["training_curve"] = {key: [row[key] for row in curve_rows] for key in curve_rows[0]}
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
 
+
+def _long_rollouts(
+    ctx: TaskContext, sim: Simulator, scene: Any, store: DatasetStore, splits: Any, ids: list[int], frames: int, scfg: StabilityConfig,
+    name: str, progress: bool,
+) -> tuple[dict[str, dict[str, Any]], float, bool]:  # fmt: skip
+    """Roll `sim` out on the trajectories `ids` for `frames` frames and watch each; returns (per trajectory, inference
+    seconds, whether every ground truth reached the full horizon)."""
+    per_traj: dict[str, dict[str, Any]] = {}
+    infer_seconds, extended = 0.0, True
+    with Progress(transient=True, disable=not progress) as bar:
+        job = bar.add_task(f"long rollouts ({name}, {frames} frames)", total=len(ids))
+        for i in ids:
+            stored = store.load_trajectory(i)
+            traj = stored.slice(0, splits.num_steps)
+            gt = long_ground_truth(ctx, scene, stored, i, frames) if scfg.extend_ground_truth else None
+            extended &= gt is not None and len(gt) >= frames
+            gt = gt if gt is not None else traj.world_pos
+            inp = long_input(traj, gt if len(gt) >= frames else None, frames)
+            t1 = time.perf_counter()
+            pred, exc_frame, message = safe_rollout(sim, inp, name, scfg.locate_exceptions)
+            infer_seconds += time.perf_counter() - t1
+            monitor = _monitor(scene, traj)
+            gt_energy = float(np.max(monitor.kinetic_energy(gt)))
+            result = watch(pred, gt, monitor, scfg, gt_energy, exc_frame, message)
+            result["gt_max_strain"] = float(np.max(monitor.max_strain(gt)[1:]))
+            per_traj[f"unviewed/{i}"] = result
+            if result["failure_frame"] is not None and progress:
+                Console(stderr=True).print(f"[yellow]{name}: trajectory {i} diverged at frame {result['failure_frame']}: {result['reason']}[/yellow]")
+            bar.advance(job)
+    return per_traj, infer_seconds, extended
+
+
+def _summary(results: list[dict[str, Any]], frames: int) -> dict[str, float]:
+    """The task's metrics over the watched rollouts: mean RMSE, largest strain and energy ratio, divergence."""
+    failed = [r["failure_frame"] for r in results if r["failure_frame"] is not None]
+    rmses = [r["rmse"] for r in results]
+    return {
+        "rmse": float(np.mean(rmses)) if rmses else float("nan"),
+        "max_strain": float(np.nanmax([r["max_strain"] for r in results])) if results else float("nan"),
+        "gt_max_strain": float(max(r["gt_max_strain"] for r in results)) if results else float("nan"),
+        "max_energy_ratio": float(np.nanmax([r["max_energy_ratio"] for r in results])) if results else float("nan"),
+        "diverged_fraction": len(failed) / max(len(results), 1),
+        "first_divergence": float(min(failed)) if failed else float("nan"),
+        "horizon_frames": float(frames),
+    }
+
+
+def _fit_with_snapshots(
+    ctx: TaskContext, sim: Simulator, store: DatasetStore, every: int
+) -> tuple[list[int], dict, float, Path, list[tuple[int, Path]]]:
+    """Fit keeping weight snapshots every `every` steps; returns (train ids, fit stats, wall seconds, work dir,
+    snapshots by step).
+
+    The fit is the CDG run's (shared through the fit cache) when it trains here or was trained with the same
+    snapshots; a fit that finished earlier without them is trained again in its own work directory."""
+    where = "task_config.stability.curve_every"
+    if not callable(getattr(sim, "snapshots", None)) or not callable(getattr(sim, "use_snapshot", None)):
+        raise ClodsError(f"simulator '{ctx.config.sim}' keeps no weight snapshots", where=where,
+                         hint="training curves need a learned simulator (mgn, bsms, hcmt, dhmp, lip, ...); set curve_every=0")  # fmt: skip
+    train_ids, stats, wall, work = fit_on_meshes(ctx, sim, store, snapshot_every=every)
+    steps = int(stats.get("train_steps", 0))
+    want = _snapshot_steps(steps, every, int(getattr(getattr(sim, "config", None), "warmup_steps", 0)))
+    snaps = sim.snapshots(work)  # type: ignore[attr-defined]
+    if not want <= {s for s, _ in snaps}:
+        train_ids, stats, wall, work = fit_on_meshes(ctx, sim, store, snapshot_every=every, identity_extra={"snapshot_every": every})
+        snaps = sim.snapshots(work)  # type: ignore[attr-defined]
+    snaps = [(s, p) for s, p in snaps if s in want]
+    if not snaps or snaps[-1][0] != steps:
+        raise ClodsError(f"the fit in {work} left snapshots at steps {[s for s, _ in snaps]}, not at its last step {steps}", where=where)
+    return train_ids, stats, wall, work, snaps
+
+
+def _snapshot_steps(train_steps: int, every: int, warmup: int) -> set[int]:
+    """Steps at which a fit of `train_steps` keeps snapshots: multiples of `every` after the warm-up, and the last."""
+    return {s for s in range(every, train_steps + 1, every) if s > warmup} | {train_steps}
+
+
+def _loss_at_step(train_log: Path) -> Any:
+    """step -> mean training loss of the curve block ending at or before it, from the fit's train log (NaN without)."""
+    try:
+        log = json.loads(Path(train_log).read_text())
+    except (OSError, ValueError):
+        log = {}
+    curve, block = log.get("loss_curve"), log.get("curve_block")
+
+    def loss(step: int) -> float:
+        if not curve or not block:
+            return float("nan")
+        k = min(len(curve), int(step) // int(block)) - 1
+        return float(curve[k]) if k >= 0 else float("nan")
+
+    return loss

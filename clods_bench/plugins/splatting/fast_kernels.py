@@ -97,17 +97,21 @@ def _row_range(mx, my, a, b, c, thr, j, i0, i1):
 
 @njit(cache=True, nogil=True, inline="always")
 def _alpha(px, py, mx, my, a, b, c, o):
-    """(alpha, sigma, dx, dy, unclamped) at pixel centre (px, py); alpha 0 means skipped."""
+    """(alpha, vis = exp(-sigma), dx, dy, unclamped) at pixel centre (px, py); alpha 0 means skipped.
+
+    vis is returned so that the backward does not evaluate the same exponential twice.
+    """
     dx = px - mx
     dy = py - my
     sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
     if sigma < 0.0:
-        return 0.0, sigma, dx, dy, False
-    raw = o * math.exp(-sigma)
+        return 0.0, 0.0, dx, dy, False
+    vis = math.exp(-sigma)
+    raw = o * vis
     alpha = min(ALPHA_MAX, raw)
     if alpha < ALPHA_MIN:
-        return 0.0, sigma, dx, dy, False
-    return alpha, sigma, dx, dy, raw <= ALPHA_MAX
+        return 0.0, vis, dx, dy, False
+    return alpha, vis, dx, dy, raw <= ALPHA_MAX
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -217,7 +221,7 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
                     p = (j - y0) * tw + (i - x0)
                     if kk >= last[p]:
                         continue
-                    alpha, sigma, dx, dy, unclamped = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
+                    alpha, vis, dx, dy, unclamped = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
                     if alpha == 0.0:
                         continue
                     inv = 1.0 / (1.0 - alpha)
@@ -236,7 +240,6 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
                     suffix[p, 2] += cb * w
                     suffix[p, 3] += z * w
                     if unclamped:
-                        vis = math.exp(-sigma)
                         gm[8] += vis * v_a
                         v_s = -o * vis * v_a  # d loss / d sigma
                         gm[0] -= v_s * (a * dx + b * dy)

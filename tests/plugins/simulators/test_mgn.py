@@ -23,6 +23,7 @@ from clods_bench.plugins.simulators.learned.graph import GraphSpec, build_featur
 from clods_bench.plugins.simulators.learned.mgn import build_mgn
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
+from clods_bench.threads import torch_threads
 
 PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=True)
 SMALL = dict(latent_size=16, hidden_layers=1, message_passing_steps=2, warmup_steps=5, checkpoint_every=10**6, num_threads=1)
@@ -306,3 +307,40 @@ def test_rollout_errors_and_divergence(windless: Trajectory, tmp_path: Path) -> 
     out = sim.rollout(inp)
     assert not np.isfinite(out[2, ~kin]).any() and np.isnan(out[3:, ~kin]).all()
     np.testing.assert_array_equal(out[:, kin], windless.world_pos[:, kin])
+
+
+def test_snapshots_are_the_weights_after_their_step(windless: Trajectory, tmp_path: Path) -> None:
+    cfg = dict(train_steps=12, checkpoint_every=4, batch_size=2)
+    sim = mgn(**cfg)
+    sim.fit([windless], FitContext(work_dir=tmp_path / "snap", seed=2, progress=False, snapshot_every=4))
+    snaps = sim.snapshots(tmp_path / "snap")
+    assert [s for s, _ in snaps] == [8, 12]  # step 4 is inside the 5-step warm-up: no weights to keep yet
+    final = _params(sim)
+    # an independent run of the shared trainer for 8 steps gives the weights of the step-8 snapshot
+    ref = mgn(**cfg)
+    with torch_threads(1):
+        trainer = Trainer(ref.build_model(2), ref.config, TrainingData([windless], ref.cache, 1), 2)
+        for _ in range(8):
+            trainer.train_step()
+    assert sim.use_snapshot(snaps[0][1]) == 8
+    for a, b in zip(_params(sim), [p.detach() for p in trainer.model.state_dict().values()]):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert sim.use_snapshot(snaps[1][1]) == 12
+    for a, b in zip(_params(sim), final):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert mgn(**cfg).snapshots(tmp_path / "none") == []
+
+
+def test_foreign_snapshots_are_clear_errors(windless: Trajectory, tmp_path: Path) -> None:
+    sim = mgn(train_steps=10)
+    with pytest.raises(ClodsError, match="snapshot before fit"):
+        sim.use_snapshot(tmp_path / "x.pt")
+    sim.fit([windless], FitContext(work_dir=tmp_path / "a", seed=0, progress=False, snapshot_every=10))
+    other = mgn(train_steps=11)
+    other.fit([windless], FitContext(work_dir=tmp_path / "b", seed=0, progress=False, snapshot_every=11))
+    with pytest.raises(ClodsError, match="config_digest"):
+        other.use_snapshot(sim.snapshots(tmp_path / "a")[0][1])
+    bad = tmp_path / "a" / "snapshots" / "step_0000010.pt"
+    bad.write_bytes(b"torn")
+    with pytest.raises(ClodsError, match="unreadable snapshot"):
+        sim.use_snapshot(bad)

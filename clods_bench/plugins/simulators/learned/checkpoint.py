@@ -64,3 +64,48 @@ def load_checkpoint(path: Path, simulator: str, config_digest: str, meshes: str)
             hint=hint,
         )
     return payload
+
+
+SNAPSHOT_DIR = "snapshots"
+
+
+def snapshot_path(work_dir: Path, step: int) -> Path:
+    """Where the weights after optimiser step `step` are kept (`snapshots/step_NNNNNNN.pt`)."""
+    return Path(work_dir) / SNAPSHOT_DIR / f"step_{int(step):07d}.pt"
+
+
+def save_snapshot(work_dir: Path, step: int, simulator: str, config_digest: str, meshes: str, model_state: dict[str, Any]) -> Path:
+    """Write the model weights (with the normalisers' statistics) after `step`, atomically; returns the path."""
+    path = snapshot_path(work_dir, step)
+    payload = {"format": CHECKPOINT_FORMAT, "simulator": simulator, "config_digest": config_digest, "mesh_digest": meshes,
+               "step": int(step), "model": model_state}  # fmt: skip
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def list_snapshots(work_dir: Path) -> list[tuple[int, Path]]:
+    """(step, path) of the snapshots in `work_dir`, by step."""
+    folder = Path(work_dir) / SNAPSHOT_DIR
+    found = []
+    for path in folder.glob("step_*.pt") if folder.is_dir() else []:
+        try:
+            found.append((int(path.stem.split("_", 1)[1]), path))
+        except ValueError:
+            continue
+    return sorted(found)
+
+
+def load_snapshot(path: Path, simulator: str, config_digest: str, meshes: str) -> dict[str, Any]:
+    """The model weights of a snapshot, after the same checks as `load_checkpoint`."""
+    hint = "delete the snapshots folder to take them again"
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
+        raise ClodsError(f"unreadable snapshot ({type(exc).__name__}: {exc})", where=str(path), hint=hint) from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT or "model" not in payload:
+        raise ClodsError("not a clods-bench learned-simulator snapshot (format mismatch)", where=str(path), hint=hint)
+    for key, want in (("simulator", simulator), ("config_digest", config_digest), ("mesh_digest", meshes)):
+        if payload.get(key) != want:
+            raise ClodsError(f"snapshot {key} {payload.get(key)!r} differs from this run's {want!r}", where=str(path), hint=hint)
+    return payload["model"]

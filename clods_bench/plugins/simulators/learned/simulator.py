@@ -27,7 +27,14 @@ from clods_bench.atomic import write_json
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.simulators.learned.checkpoint import load_checkpoint, mesh_digest, save_checkpoint
+from clods_bench.plugins.simulators.learned.checkpoint import (
+    list_snapshots,
+    load_checkpoint,
+    load_snapshot,
+    mesh_digest,
+    save_checkpoint,
+    save_snapshot,
+)
 from clods_bench.plugins.simulators.learned.config import LearnedConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, TopologyCache
 from clods_bench.plugins.simulators.learned.model import LearnedModel, ProcessorFactory
@@ -54,6 +61,7 @@ class LearnedSimulator:
         self.cache = TopologyCache()
         self.model: LearnedModel | None = None
         self.dt: float | None = None
+        self._digests: tuple[str, str] | None = None  # (config, training meshes) of the last fit: snapshots must match
 
     @property
     def checkpoint_name(self) -> str:
@@ -105,8 +113,12 @@ class LearnedSimulator:
             def checkpoint() -> None:
                 save_checkpoint(path, self.name, digest, meshes, trainer.state_dict(), {"dt": dt, "scene": self.scene_name})
 
-            self._train_loop(trainer, checkpoint, ctx.progress)
-            self.model, self.dt = model.eval(), dt
+            def snapshot() -> None:
+                save_snapshot(Path(ctx.work_dir), trainer.step, self.name, digest, meshes, model.state_dict())
+
+            every = int(getattr(ctx, "snapshot_every", 0) or 0)
+            self._train_loop(trainer, checkpoint, ctx.progress, snapshot if every > 0 else None, every)
+            self.model, self.dt, self._digests = model.eval(), dt, (digest, meshes)
         write_json(Path(ctx.work_dir) / f"{self.name}_train_log.json", {"loss_curve": trainer.curve, "curve_block": trainer.curve_block})
         params = sum(p.numel() for p in model.parameters())
         return {
@@ -118,8 +130,22 @@ class LearnedSimulator:
             "parameters": float(params),
         }
 
-    def _train_loop(self, trainer: Trainer, checkpoint: object, progress: bool) -> None:
-        """Run the trainer to `train_steps`, checkpointing every `checkpoint_every` steps and at the end."""
+    def snapshots(self, work_dir: Path) -> list[tuple[int, Path]]:
+        """(step, path) of the weight snapshots a fit with `snapshot_every` left in `work_dir`."""
+        return list_snapshots(work_dir)
+
+    def use_snapshot(self, path: Path) -> int:
+        """Load a snapshot of the last fit into the model (rollouts then use it); returns its step."""
+        if self.model is None or self._digests is None:
+            raise ClodsError("snapshot before fit", where=f"simulator '{self.name}'", hint="call fit() first")
+        state = load_snapshot(Path(path), self.name, *self._digests)
+        self.model.load_state_dict(state)
+        self.model.eval()
+        return int(Path(path).stem.split("_", 1)[1])
+
+    def _train_loop(self, trainer: Trainer, checkpoint: object, progress: bool, snapshot: object = None, every: int = 0) -> None:
+        """Run the trainer to `train_steps`, checkpointing every `checkpoint_every` steps and at the end (and taking a
+        weight snapshot every `every` steps and at the end when `snapshot` is given)."""
         cfg = self.config
         if trainer.step >= cfg.train_steps:
             return
@@ -130,7 +156,10 @@ class LearnedSimulator:
                 t0 = time.perf_counter()
                 loss = trainer.train_step()
                 trainer.train_seconds += time.perf_counter() - t0
-                if trainer.step % cfg.checkpoint_every == 0 or trainer.step == cfg.train_steps:
+                last = trainer.step == cfg.train_steps
+                if snapshot is not None and trainer.step > cfg.warmup_steps and (trainer.step % every == 0 or last):
+                    snapshot()  # type: ignore[operator]  # before the checkpoint: a resume never skips one
+                if trainer.step % cfg.checkpoint_every == 0 or last:
                     checkpoint()  # type: ignore[operator]
                 bar.update(job, completed=trainer.step, loss="warm-up" if loss is None else f"{trainer.final_loss:.4g}")
 
