@@ -61,12 +61,21 @@ def stage0_mesh(ctx: TaskContext, opts: ClodsConfig, cfg: Stage0Config, index: i
     return mesh, {"stage0_seconds": stats["stage0_seconds"], "stage0_cost_seconds": stats["stage0_seconds"]}
 
 
+SIDE_BAND = 1.5  # edge lengths: boundary nodes this close to an extreme of the material box make a candidate side
+LINE_BAND = 0.5  # edge lengths: nodes of the chosen side this close to its fitted line are the handles
+
+
 def detect_handles(frames: np.ndarray, mesh_pos: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Indices of the pinned edge, seen only through the extracted motion `frames` (T,V,3): of the four sides of the
-    sheet's material-coordinate box (its longest extent and the one across; nodes within 0.6 edge lengths of a side,
-    at least 60 % of a full side's count), the side whose nodes move least on average: a cloth pinned along one
-    straight edge, as the flag and the banner are. A per-node threshold does not work here: at `ci` the extracted pole
-    nodes drift 2-7 cm over 31 frames and nodes next to the pole as little (see the README)."""
+    """Indices of the pinned edge, seen only through the extracted motion `frames` (T,V,3): a cloth pinned along one
+    straight edge, as the flag and the banner are.
+
+    Candidates are the four sides of the sheet's material-coordinate box (its longest extent and the one across):
+    the boundary nodes within SIDE_BAND edge lengths of each extreme, so that a ragged or slightly turned side still
+    counts. The side whose nodes move least on average is the pinned one; its handles are the rim's nodes within
+    LINE_BAND edge lengths of the straight line through it (fitted twice: the neighbouring sides' corner nodes drop
+    out, and the nodes of a slanted side that leave the box's band come back). A per-node
+    motion threshold does not work here: at `ci` the extracted pole nodes drift 2-7 cm over 31 frames and nodes next
+    to the pole as little (see the README)."""
     from clods_bench.datasets.types import edges_from_cells
 
     tracks = np.asarray(frames, np.float64)
@@ -76,17 +85,37 @@ def detect_handles(frames: np.ndarray, mesh_pos: np.ndarray, cells: np.ndarray) 
     mp = np.asarray(mesh_pos, np.float64)
     centred = mp - mp.mean(axis=0)
     uv = centred @ np.linalg.eigh(centred.T @ centred)[1]
-    e = edges_from_cells(np.asarray(cells))
+    tri = np.asarray(cells)
+    e = edges_from_cells(tri)
     spacing = float(np.median(np.linalg.norm(mp[e[:, 0]] - mp[e[:, 1]], axis=1)))
+    boundary = _boundary_nodes(tri)
     sides = []
     for a in (0, 1):
-        expected = np.ptp(uv[:, 1 - a]) / spacing + 1.0  # nodes along a full side
-        for nodes in (np.flatnonzero(uv[:, a] <= uv[:, a].min() + 0.6 * spacing), np.flatnonzero(uv[:, a] >= uv[:, a].max() - 0.6 * spacing)):
-            if nodes.size >= 0.6 * expected:  # a ragged side (a corner poking out of the box) is not an edge
-                sides.append(nodes)
+        band = SIDE_BAND * spacing
+        for near in (uv[boundary, a] <= uv[:, a].min() + band, uv[boundary, a] >= uv[:, a].max() - band):
+            if int(near.sum()) >= 2:
+                sides.append(boundary[near])
     if not sides:
         raise ClodsError("the reconstructed sheet has no straight side to pin", where="task_config.clods.initial_mesh")
-    return min(sides, key=lambda nodes: float(moved[nodes].mean()))
+    side = min(sides, key=lambda nodes: float(moved[nodes].mean()))
+    on_line = side
+    for _ in range(2):  # fit the side's line, drop the neighbouring sides' corner nodes, refit on what is left
+        origin = mp[on_line].mean(axis=0)
+        pts = mp[on_line] - origin
+        direction = np.linalg.eigh(pts.T @ pts)[1][:, -1]
+        off = np.abs((mp[boundary] - origin) @ np.array([-direction[1], direction[0]]))
+        found = boundary[off <= LINE_BAND * spacing]  # along the whole rim: a slanted side leaves the box's band
+        if found.size < 2:
+            return side
+        on_line = found
+    return on_line
+
+
+def _boundary_nodes(cells: np.ndarray) -> np.ndarray:
+    """Nodes on an edge that only one triangle uses (the sheet's rim), sorted."""
+    e = np.sort(np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(e, axis=0, return_counts=True)
+    return np.unique(unique[counts == 1])
 
 
 def orient_material_coords(mesh_pos: np.ndarray, handles: np.ndarray, world0: np.ndarray) -> np.ndarray:
@@ -145,4 +174,6 @@ def extract_reconstructed(
         "stage0_handles": float(np.mean([int(np.sum(m.node_type == HANDLE)) for m in meshes])),
     })  # fmt: skip
     stats["stage1_cost_seconds"] += stats["stage0_cost_seconds"]  # stage 0 is part of the renderer's set-up cost
-    return meshes, stats, curves, cache.key
+    # what stage 3 learns from: the cached motion and the handles found in it (a change of `detect_handles` is a new fit)
+    handles = [np.flatnonzero(m.node_type == HANDLE).tolist() for m in meshes]
+    return meshes, stats, curves, f"{cache.key}-{digest(handles)[:8]}"

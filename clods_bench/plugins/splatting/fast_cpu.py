@@ -70,8 +70,10 @@ class _SplatFast(torch.autograd.Function):
                        means2d, depths, conics, radii, bounds, thresh)  # fmt: skip
         offsets, ids = K.sort_and_bin(depths, bounds, tiles_x, tiles_y)
         args = (means2d, conics, _np(colors), o, depths, radii, thresh, offsets, ids, W, H, tile, tiles_x, tiles_y)
-        rgb = np.empty((C, H, W, 3))
-        alpha, depth, t_final = np.empty((C, H, W)), np.empty((C, H, W)), np.empty((C, H, W))
+        out_dtype = np.float32 if means.dtype == torch.float32 else np.float64  # the kernel rounds once, as .to() would
+        rgb = np.empty((C, H, W, 3), dtype=out_dtype)
+        alpha, depth = np.empty((C, H, W), dtype=out_dtype), np.empty((C, H, W), dtype=out_dtype)
+        t_final = np.empty((C, H, W))
         n_last = np.empty((C, H, W), dtype=np.int32)
         with numba.parallel_chunksize(1):  # tiles differ a lot in cost: hand them out one by one
             K.raster_fwd(*args, rgb, alpha, depth, t_final, n_last)
@@ -80,7 +82,7 @@ class _SplatFast(torch.autograd.Function):
         r = torch.from_numpy(radii)
         ctx.mark_non_differentiable(r)
         out = (torch.from_numpy(rgb), torch.from_numpy(alpha)[..., None], torch.from_numpy(depth)[..., None])
-        return (*(x.to(means.dtype) for x in out), r)
+        return (*(x.to(means.dtype) for x in out), r)  # no copy unless means is neither float32 nor float64
 
     @staticmethod
     @once_differentiable
@@ -89,17 +91,25 @@ class _SplatFast(torch.autograd.Function):
         offsets, ids, radii = args[7], args[8], args[5]
         C, G = args[3].shape
         g_isect = np.empty((ids.shape[0], K.N_GRAD))
-        with numba.parallel_chunksize(1):
-            K.raster_bwd(*args, t_final, n_last, _np(v_rgb), _np(v_alpha[..., 0]), _np(v_depth[..., 0]), g_isect)
+        with numba.parallel_chunksize(1):  # the pixel gradients are read in their own dtype (float32 widens exactly)
+            K.raster_bwd(*args, t_final, n_last, _pixels(v_rgb), _pixels(v_alpha[..., 0]), _pixels(v_depth[..., 0]), g_isect)
         grads = np.zeros((C, G, K.N_GRAD))
         K.reduce_grads(offsets, ids, g_isect, args[12] * args[13], grads)
         v_means, v_covars = np.zeros((G, 3)), np.zeros((G, 3, 3))
-        if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:
-            PK.project_bwd(m, S, cams.cams, cams.ts, cams.lims, EPS2D, radii, np.ascontiguousarray(grads[..., 0:2]),
-                           np.ascontiguousarray(grads[..., 2:5]), np.ascontiguousarray(grads[..., 9]), v_means, v_covars)  # fmt: skip
-        g = torch.from_numpy(grads).to(ctx.dtype)
+        if ctx.needs_input_grad[0] or ctx.needs_input_grad[1]:  # strided views of grads: numba reads them in place
+            PK.project_bwd(m, S, cams.cams, cams.ts, cams.lims, EPS2D, radii, grads[..., 0:2], grads[..., 2:5], grads[..., 9], v_means, v_covars)
         to = ctx.dtype
-        return torch.from_numpy(v_means).to(to), torch.from_numpy(v_covars).to(to), g[..., 8], g[..., 5:8], None, None, None
+        g = torch.from_numpy(grads).to(to)  # opacity and colour gradients stay views of it: torch sums them over cameras
+        g_opac, g_col = g[..., 8], g[..., 5:8]  # next, and the order of that sum depends on their strides
+        return torch.from_numpy(v_means).to(to), torch.from_numpy(v_covars).to(to), g_opac, g_col, None, None, None
+
+
+def _pixels(x: Tensor) -> np.ndarray:
+    """A per-pixel gradient as numpy in its own float dtype (float32 stays float32: the kernel widens it exactly)."""
+    x = x.detach()
+    if x.dtype not in (torch.float32, torch.float64):
+        x = x.double()
+    return np.ascontiguousarray(x.numpy())
 
 
 def splat_fast(

@@ -107,6 +107,25 @@ def test_the_pinned_edge_is_the_side_that_moves_least():
         detect_handles(np.repeat(x0[None], 4, axis=0), mp, flag.cells)
 
 
+def test_a_slanted_pinned_side_is_still_found():
+    """The flattening of a reconstructed sheet need not be a rectangle: here the pole's side leans by 1.2 edge lengths
+    in material coordinates (most of its nodes are more than 0.6 edge lengths from the box's extreme, which hid it
+    from the earlier rule), and only the pole's 5 nodes, not the bottom edge's neighbouring corner node, are pinned."""
+    from clods_bench.benchmark.clods.reconstructed import detect_handles
+
+    flag = make_flag_mesh(9, 5, 2.0, 1.0)
+    x0 = flag.rest_pos
+    frames = []
+    for t in range(8):
+        a = 0.1 * t
+        rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        frames.append(x0 @ rot.T + np.outer(0.05 * t * x0[:, 0] ** 2, [0.0, 1.0, 0.0]))
+    mp = flag.mesh_pos.astype(np.float64).copy()
+    mp[:, 0] += 0.3 * mp[:, 1]  # shear: the pole (u = 0) now runs from u = 0 to u = 0.3 (1.2 edge lengths of 0.25 m)
+    pole = np.flatnonzero(x0[:, 0] == 0.0)
+    np.testing.assert_array_equal(np.sort(detect_handles(np.stack(frames), mp, flag.cells)), pole)
+
+
 def test_reconstructed_initial_mesh_options_are_checked():
     from clods_bench.benchmark.clods.config import ClodsConfig
 

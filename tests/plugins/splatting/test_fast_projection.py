@@ -93,3 +93,18 @@ def test_float32_render_equals_float64_render_of_the_same_gaussians() -> None:
     b = render_gaussians(same["means"], same["covars"], same["opacities"], same["colors"], cams)
     diff = max(float((a.rgb.double() - b.rgb).abs().max()), float((a.alpha.double() - b.alpha).abs().max()))
     assert diff <= 1e-6, diff
+
+
+def test_radix_depth_order_equals_a_stable_sort() -> None:
+    """The binning's depth order: an LSD radix sort of the keys' bits, against numpy's stable argsort (ties by index)."""
+    from clods_bench.plugins.splatting.fast_kernels import stable_argsort_positive
+
+    rng = np.random.default_rng(0)
+    for trial in range(120):
+        n = int(rng.integers(0, 2500))
+        keys = rng.random(n) * rng.choice([1e-6, 1.0, 7.0, 1e8]) + 1e-3
+        if trial % 3 == 0:  # many exact ties
+            keys = np.round(keys, 1) + 0.5
+        if trial % 7 == 0 and n:  # keys spanning many binades, and denormal-free tiny ones
+            keys = np.exp(rng.normal(0, 30, n))
+        np.testing.assert_array_equal(stable_argsort_positive(keys), np.argsort(keys, kind="stable"))
