@@ -62,6 +62,10 @@ class DataConfig:
     image file: `file:PATH` or a path ending in .png/.jpg/.jpeg (its content's sha256 joins the dataset identity)."""
     render_frames: bool = True
     """Render multi-view frames (tasks on meshes alone can switch this off)."""
+    frames: str = "stored"
+    """'stored': frames rendered at generation and kept compressed on disk; 'on_demand': only the meshes and a render
+    setup are kept, and the frames a task reads are rendered then (byte-identical; for sizes whose frames do not fit
+    on disk, e.g. the paper preset's 3.5 GB per trajectory)."""
     seed: int = 0
     """Base seed: trajectory i is simulated with seed + i."""
     root: str = "data"
@@ -77,6 +81,8 @@ class DataConfig:
         image-file texture, the sha256 of the file's bytes (editing the file gives a new dataset)."""
         d = dataclasses.asdict(self)
         d.pop("root")
+        if d["frames"] == "stored":  # the default keeps the identities (and directories) of every earlier dataset
+            d.pop("frames")
         if d["path"] is None:
             d.pop("path")
             digest = texture_file_digest(self.texture)  # None for named textures: their identities stay as before

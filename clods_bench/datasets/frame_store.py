@@ -185,29 +185,12 @@ def _grid(shape: Sequence[int], chunks: Sequence[int]) -> int:
 Index = int | slice | Sequence[int] | np.ndarray
 
 
-class LazyFrames:
-    """Frames (T, N, H, W, 3) uint8 of one trajectory, decoded only where indexed.
+class FrameArray:
+    """What a trajectory's frames (T, N, H, W, 3) uint8 offer a task, however they are obtained: `shape`, `read`
+    (orthogonal selection), and numpy-like indexing on the time and camera axes."""
 
-    `frames[t0:t1, views]` reads the chunks of those cameras and frames only; the first two axes take an int,
-    a slice or a list of indices, the rest any numpy index (applied after reading whole images). A list on
-    both the time and the camera axis is refused (numpy would pair them up): use `read(times, views)`,
-    which selects orthogonally (every listed frame of every listed camera).
-    """
-
-    def __init__(self, path: Path, record: dict[str, Any] | None = None) -> None:
-        """Open the array at `path`; with the manifest `record`, its metadata is checked against it."""
-        self.path = Path(path)
-        if not self.path.is_dir():
-            raise ClodsError("frame array missing", where=str(self.path), hint="re-run generation, or regenerate with --force")
-        self._array = _open(self.path)
-        if record is not None and record.get("sha256") is not None:
-            digest = hashlib.sha256((self.path / "zarr.json").read_bytes()).hexdigest()
-            if digest != record["sha256"]:
-                raise ClodsError("zarr.json differs from the manifest (corrupted or replaced)", where=str(self.path / "zarr.json"), hint=_HINT)
-        self.shape: tuple[int, ...] = tuple(int(s) for s in self._array.shape)
-        self.dtype = np.dtype(np.uint8)
-        self.chunk_frames = int(self._array.chunks[0])
-        self.chunks_read = 0  # chunk files decoded by this object (what a selection cost)
+    path: Path
+    shape: tuple[int, ...]
 
     @property
     def ndim(self) -> int:
@@ -238,10 +221,43 @@ class LazyFrames:
         rest = (0 if isinstance(t_key, (int, np.integer)) else slice(None), 0 if isinstance(v_key, (int, np.integer)) else slice(None))
         return out[(*rest, *key[2:])]
 
+    def read(self, times: Index, views: Index) -> np.ndarray:  # pragma: no cover - every subclass defines it
+        """(len(times), len(views), H, W, 3): every selected frame of every selected camera (ints keep their axis)."""
+        raise NotImplementedError
+
+    def verify(self) -> None:  # pragma: no cover
+        """Check whatever backs the frames; ClodsError naming what is wrong."""
+        raise NotImplementedError
+
+
+class LazyFrames(FrameArray):
+    """Frames (T, N, H, W, 3) uint8 of one trajectory, decoded only where indexed.
+
+    `frames[t0:t1, views]` reads the chunks of those cameras and frames only; the first two axes take an int,
+    a slice or a list of indices, the rest any numpy index (applied after reading whole images). A list on
+    both the time and the camera axis is refused (numpy would pair them up): use `read(times, views)`,
+    which selects orthogonally (every listed frame of every listed camera).
+    """
+
+    def __init__(self, path: Path, record: dict[str, Any] | None = None) -> None:
+        """Open the array at `path`; with the manifest `record`, its metadata is checked against it."""
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise ClodsError("frame array missing", where=str(self.path), hint="re-run generation, or regenerate with --force")
+        self._array = _open(self.path)
+        if record is not None and record.get("sha256") is not None:
+            digest = hashlib.sha256((self.path / "zarr.json").read_bytes()).hexdigest()
+            if digest != record["sha256"]:
+                raise ClodsError("zarr.json differs from the manifest (corrupted or replaced)", where=str(self.path / "zarr.json"), hint=_HINT)
+        self.shape: tuple[int, ...] = tuple(int(s) for s in self._array.shape)
+        self.dtype = np.dtype(np.uint8)
+        self.chunk_frames = int(self._array.chunks[0])
+        self.chunks_read = 0  # chunk files decoded by this object (what a selection cost)
+
     def read(self, times: Index, views: Index) -> np.ndarray:
         """(len(times), len(views), H, W, 3): every selected frame of every selected camera (ints keep their axis)."""
-        t_idx = _indices(times, self.shape[0], "time", self.path)
-        v_idx = _indices(views, self.shape[1], "camera", self.path)
+        t_idx = indices(times, self.shape[0], "time", self.path)
+        v_idx = indices(views, self.shape[1], "camera", self.path)
         out = np.empty((len(t_idx), len(v_idx), *self.shape[2:]), np.uint8)
         k = self.chunk_frames
         for first, last in _runs(np.unique(t_idx // k)):  # consecutive time chunks: one zarr read each (decoded concurrently)
@@ -299,7 +315,7 @@ def _is_basic(key: Any) -> bool:
     return isinstance(key, (int, np.integer, slice))
 
 
-def _indices(key: Index, size: int, axis: str, where: Path) -> np.ndarray:
+def indices(key: Index, size: int, axis: str, where: Path) -> np.ndarray:
     """`key` (int, slice or sequence, negatives allowed) as an int64 index array into range(size)."""
     if isinstance(key, slice):
         return np.arange(size)[key]

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from clods_bench.benchmark.registry import Registry
 
 TEXTURE_FILE = "texture.png"
+FRAME_MODES = ("stored", "on_demand")
 LIGHT = DirectionalLight(direction=(-0.3, 0.8, -0.5), ambient=0.3, diffuse=0.7)  # lights the hanging flag (normal ~ y) well
 
 
@@ -174,7 +175,8 @@ def generate_trajectory(job: TrajectoryJob) -> int:
     i = job.index
     seed = d.seed + i
     traj = simulate_scene(job.scene, s.mesh, d.num_steps, seed)
-    frames = render_steps(traj, s.mesh.texture_uv(), s.texture, s.cameras, s.settings) if d.render_frames else None
+    stored = d.render_frames and d.frames == "stored"  # on demand: the store renders them when read
+    frames = render_steps(traj, s.mesh.texture_uv(), s.texture, s.cameras, s.settings) if stored else None
     DatasetStore.open(d.dataset_dir()).write_trajectory(i, "train" if i < d.num_train else "test", seed, traj, frames)
     return i
 
@@ -188,6 +190,11 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
     if d.path:
         raise ClodsError("data.path names an existing dataset: there is nothing to generate", where=f"data.path={d.path}",
                          hint="leave data.path unset to generate the dataset the other data.* fields describe")  # fmt: skip
+    if d.frames not in FRAME_MODES:
+        raise ClodsError(f"unknown frames mode {d.frames!r}, expected one of {FRAME_MODES}", where="data.frames")
+    if d.frames == "on_demand" and not d.render_frames:
+        raise ClodsError("frames=on_demand renders frames when read, but render_frames is off", where="data.frames",
+                         hint="leave data.render_frames on, or data.frames=stored")  # fmt: skip
     for name in ("num_train", "num_test"):
         if getattr(d, name) < (2 if name == "num_train" else 1):
             raise ClodsError(f"{name} is {getattr(d, name)}, too small", where=f"data.{name}")
@@ -207,6 +214,8 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
         store = DatasetStore.create(root, d.scene, {**d.identity(), "scene_spec": scene_fingerprint(scene)}, setup.cameras)
         if d.render_frames and not (root / TEXTURE_FILE).exists():
             save_texture(root / TEXTURE_FILE, setup.texture)
+        if d.frames == "on_demand" and not store.frames_on_demand:
+            store.write_render_setup(setup.mesh.texture_uv(), setup.texture, setup.settings)
         total = d.num_train + d.num_test
         jobs = [TrajectoryJob(dataclasses.asdict(d), scene, i) for i in range(total) if i not in store.completed_indices()]
         if not jobs:

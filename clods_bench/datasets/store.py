@@ -6,7 +6,9 @@ Layout of `root` (schema version 2):
 - `traj_0000.npz`: cells, mesh_pos, node_type, world_pos, dt and `meta` (a JSON string);
 - `frames_0000.zarr/`: (T, N, H, W, 3) uint8 multi-view frames, chunked per camera and a few frames,
   compressed and checksummed per chunk (see `frame_store`), read lazily with `frames(index)`;
-- `texture.png` (optional).
+- `texture.png` (optional);
+- `render_setup.npz` instead of frame arrays for a dataset generated with `data.frames=on_demand`: its frames are
+  rendered from the meshes when read (`rendered_frames`), byte-identical to stored ones.
 A dataset imported from video may have no meshes (manifest `"meshes": false`): its entries then hold frames,
 `dt` and `meta` only, and `load_trajectory` refuses with one line saying so (`require_meshes`).
 Files are written atomically before their manifest entry, so an interrupted generation leaves
@@ -28,7 +30,9 @@ import numpy as np
 
 from clods_bench.atomic import _jsonable, atomic_path, file_lock, write_json, write_npz
 from clods_bench.datasets.cameras import Camera
-from clods_bench.datasets.frame_store import LazyFrames, write_frames
+from clods_bench.datasets.frame_store import FrameArray, LazyFrames, write_frames
+from clods_bench.datasets.rasterizer import RasterSettings
+from clods_bench.datasets.rendered_frames import RENDER_SETUP, RenderedFrames, read_render_setup, write_render_setup
 from clods_bench.datasets.splits import SPLITS
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -49,6 +53,7 @@ class DatasetStore:
         self.root = Path(root)
         self._manifest = manifest if manifest is not None else _read_manifest(self.root)
         self._entries: dict[int, dict[str, Any]] = {int(e["index"]): e for e in self._manifest["trajectories"]}
+        self._render_setup: tuple | None = None  # read once per store when frames are rendered on demand
 
     # ----------------------------------------------------------- create / open
 
@@ -181,9 +186,12 @@ class DatasetStore:
         traj.validate(where=str(path))
         return traj
 
-    def frames(self, index: int) -> LazyFrames:
-        """Frames (T, N, H, W, 3) uint8 of trajectory `index`, read lazily: `frames(i)[t0:t1, views]` decodes only those chunks."""
+    def frames(self, index: int) -> FrameArray:
+        """Frames (T, N, H, W, 3) uint8 of trajectory `index`, read lazily: `frames(i)[t0:t1, views]` decodes only those
+        chunks, or, for a dataset generated with `data.frames=on_demand`, renders only those views from the meshes."""
         entry = self._entry(index)
+        if "frames" not in entry["files"] and self._manifest.get("render_setup"):
+            return self._rendered_frames(index)
         if "frames" not in entry["files"]:
             raise ClodsError(f"trajectory {index} was stored without frames", where=str(self.root / MANIFEST),
                              hint="regenerate the dataset with render_frames on")
@@ -193,6 +201,24 @@ class DatasetStore:
         if frames.shape != expected:
             raise ClodsError(f"frames {frames.shape}, manifest says {expected}", where=str(frames.path))
         return frames
+
+    @property
+    def frames_on_demand(self) -> bool:
+        """True for a dataset generated with `data.frames=on_demand` (meshes and a render setup, no stored frames)."""
+        return bool(self._manifest.get("render_setup"))
+
+    def write_render_setup(self, uv: np.ndarray, texture: np.ndarray, settings: RasterSettings) -> None:
+        """Store what rendering the frames on demand needs (`rendered_frames.RENDER_SETUP`) and record it."""
+        path = self.root / RENDER_SETUP
+        write_render_setup(path, uv, texture, settings)
+        record = _file_record(path)
+        self._update_manifest(lambda: self._manifest.__setitem__("render_setup", record))
+
+    def _rendered_frames(self, index: int) -> FrameArray:
+        if self._render_setup is None:
+            path = self._checked_file(self._manifest["render_setup"], verify=False)
+            self._render_setup = read_render_setup(path)
+        return RenderedFrames(self.load_trajectory(index), self.cameras(), self._render_setup, self.root / RENDER_SETUP)
 
     def load_frames(self, index: int, mmap: bool = True, verify: bool = False) -> np.ndarray:
         """All frames (T, N, H, W, 3) uint8 of trajectory `index`, decoded into memory (`mmap` is ignored since
@@ -207,6 +233,8 @@ class DatasetStore:
         problems: list[str] = []
         texture = self._manifest.get("texture")
         checks = [lambda: self._checked_file(texture, True)] if texture else []
+        if self._manifest.get("render_setup"):
+            checks.append(lambda: read_render_setup(self._checked_file(self._manifest["render_setup"], True)))
         for index, entry in sorted(self._entries.items()):
             if "traj" in entry["files"]:
                 checks.append(lambda i=index: self.load_trajectory(i, verify=True))
@@ -342,8 +370,9 @@ class DatasetStore:
 
     def _delete_files(self) -> None:
         names = [f["name"] for e in self._entries.values() for f in e["files"].values()]
-        if self._manifest.get("texture"):
-            names.append(self._manifest["texture"]["name"])
+        for key in ("texture", "render_setup"):
+            if self._manifest.get(key):
+                names.append(self._manifest[key]["name"])
         for name in names:
             path = self.root / name
             if path.is_dir():

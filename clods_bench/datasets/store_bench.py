@@ -5,7 +5,10 @@ mesh, cameras, texture, seed). With `blocks`, only that many chunk-long runs of 
 evenly through the trajectory, are rendered (from every camera): each run is exactly one time chunk of the
 full trajectory's array, so the full trajectory's size is extrapolated as (mean bytes per chunk) x (chunks).
 Both formats are written to a temp directory and read back while still in the page cache, so the read
-speeds are decode speeds (what a task sees on a warm machine), not disk speeds.
+speeds are decode speeds (what a task sees on a warm machine), not disk speeds. The "on demand" column is a dataset
+generated with `data.frames=on_demand`: its bytes are the meshes and the render setup, its reads render the frames
+(one camera's frame range through `RenderedFrames`, checked equal to the stored frames; all cameras' frames at the
+speed of the generation render above, which runs the same rasterizer calls).
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from clods_bench.atomic import write_npz
 from clods_bench.datasets.frame_store import LazyFrames, default_chunk_frames, write_frames
+from clods_bench.datasets.rendered_frames import RENDER_SETUP, RenderedFrames, read_render_setup, write_render_setup
 
 
 def sample_times(num_steps: int, chunk: int, blocks: int | None) -> list[int]:
@@ -76,6 +81,15 @@ def bench_store(cfg: Any, scene: Any, blocks: int | None = None, console: Consol
         npy_one, _ = _timed(lambda: np.array(np.load(npy, mmap_mode="r")[:span, 0]), repeats)
         zarr_one, _ = _timed(lambda: lazy[:span, 0], repeats)
         meta_bytes = (arr / "zarr.json").stat().st_size
+        # on demand (data.frames=on_demand): the meshes and the render setup on disk, frames rendered when read
+        write_npz(Path(tmp) / "traj.npz", **{k: getattr(traj, k) for k in ("cells", "mesh_pos", "node_type", "world_pos")})
+        write_render_setup(Path(tmp) / RENDER_SETUP, setup.mesh.texture_uv(), setup.texture, setup.settings)
+        demand_bytes = sum((Path(tmp) / f).stat().st_size for f in ("traj.npz", RENDER_SETUP))
+        setup_read = read_render_setup(Path(tmp) / RENDER_SETUP)
+        sel = [times[j] for j in range(span)]
+        demand_one, got3 = _timed(lambda: RenderedFrames(traj, setup.cameras, setup_read, Path(tmp)).read(sel, [0])[:, 0], 1)
+        if not np.array_equal(got3, lazy[:span, 0]):
+            raise AssertionError("frames rendered on demand differ from the stored ones")
     chunk_bytes = (record["bytes"] - meta_bytes) / record["chunks"]
     full_chunks = -(-d.num_steps // k) * shape[1]
     del frames, got, got2
@@ -89,7 +103,10 @@ def bench_store(cfg: Any, scene: Any, blocks: int | None = None, console: Consol
         "write_mb_s": {"npy": raw / npy_write / 1e6, "store": raw / zarr_write / 1e6},
         "full_read": {"npy": (raw / npy_full / 1e6, images / npy_full), "store": (raw / zarr_full / 1e6, images / zarr_full)},
         "one_camera_read": {"frames": span, "npy": (span * int(np.prod(shape[2:])) / npy_one / 1e6, span / npy_one),
-                            "store": (span * int(np.prod(shape[2:])) / zarr_one / 1e6, span / zarr_one)},
+                            "store": (span * int(np.prod(shape[2:])) / zarr_one / 1e6, span / zarr_one),
+                            "on_demand": (span * int(np.prod(shape[2:])) / demand_one / 1e6, span / demand_one)},
+        "on_demand_bytes_per_trajectory": int(demand_bytes),
+        "on_demand_full_read": (raw / render_s / 1e6, images / render_s),  # the same render_views calls, all cameras a frame
     }  # fmt: skip
 
 
@@ -101,16 +118,18 @@ def print_bench_store(console: Console, cfg: Any, scene: Any, blocks: int | None
     what = (f"{r['frames_rendered']} of {t} frames ({len(r['times']) // r['chunk_frames']} runs of {r['chunk_frames']}) x {n} cameras, "
             f"bytes extrapolated to all {t}" if subset else f"all {t} frames x {n} cameras")  # fmt: skip
     table = Table(title=f"clods-bench bench store: preset {r['preset']}, trajectory 0, {w}x{h} px, {what}")
-    for col in ("what", "raw .npy", "frame store", "store / npy"):
+    for col in ("what", "raw .npy", "frame store", "store / npy", "on demand", "on demand / npy"):
         table.add_column(col, justify="right")
-    rb, sb = r["raw_bytes_per_trajectory"], r["stored_bytes_per_trajectory"]
-    table.add_row("bytes per trajectory (frames)", _size(rb), _size(sb), f"{sb / rb:.3f} ({rb / sb:.1f}x smaller)")
-    table.add_row("write MB/s", f"{r['write_mb_s']['npy']:.0f}", f"{r['write_mb_s']['store']:.0f}", f"{r['write_mb_s']['store'] / r['write_mb_s']['npy']:.2f}")
+    rb, sb, db = r["raw_bytes_per_trajectory"], r["stored_bytes_per_trajectory"], r["on_demand_bytes_per_trajectory"]
+    table.add_row("bytes per trajectory (frames)", _size(rb), _size(sb), f"{sb / rb:.3f} ({rb / sb:.1f}x smaller)", _size(db) + " (meshes)",
+                  f"{db / rb:.5f}")  # fmt: skip
+    table.add_row("write MB/s", f"{r['write_mb_s']['npy']:.0f}", f"{r['write_mb_s']['store']:.0f}", f"{r['write_mb_s']['store'] / r['write_mb_s']['npy']:.2f}", "", "")
     for key, label in (("full_read", f"read all {r['frames_rendered']} frames x {n} cameras"),
                        ("one_camera_read", f"read camera 0, frames 0..{r['one_camera_read']['frames'] - 1}")):  # fmt: skip
         (a_mb, a_fps), (b_mb, b_fps) = r[key]["npy"], r[key]["store"]
-        table.add_row(f"{label}: MB/s", f"{a_mb:.0f}", f"{b_mb:.0f}", f"{b_mb / a_mb:.2f}")
-        table.add_row(f"{label}: images/s", f"{a_fps:.0f}", f"{b_fps:.0f}", f"{b_fps / a_fps:.2f}")
+        c_mb, c_fps = r["on_demand_full_read"] if key == "full_read" else r[key]["on_demand"]
+        table.add_row(f"{label}: MB/s", f"{a_mb:.0f}", f"{b_mb:.0f}", f"{b_mb / a_mb:.2f}", f"{c_mb:.1f}", f"{c_mb / a_mb:.4f}")
+        table.add_row(f"{label}: images/s", f"{a_fps:.0f}", f"{b_fps:.0f}", f"{b_fps / a_fps:.2f}", f"{c_fps:.1f}", f"{c_fps / a_fps:.4f}")
     console.print(table)
     console.print(f"chunk: {r['chunk_frames']} frames x 1 camera; simulated in {r['sim_seconds']:.1f} s, rendered in "
                   f"{r['render_seconds']:.1f} s; reads: best of {r['repeats']}, files in the page cache (decode speed, not disk)")  # fmt: skip
