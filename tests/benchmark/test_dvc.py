@@ -186,3 +186,12 @@ def test_start_from_the_last_observed_frames(tiny_root: Path, tmp_path: Path) ->
     assert rec["metrics"]["all/psnr"]["mean"] == pytest.approx(np.mean(every), rel=1e-4)
     with pytest.raises(ClodsError, match="start=observed needs the meshes stage 2 recovered"):
         _run(tiny_root, tmp_path / "mesh", "task_config.dvc.sim_training=mesh", "task_config.dvc.start=observed", sim="frozen", renderer="games")
+
+
+def test_a_dataset_with_frames_on_demand_scores_the_same(tiny_root: Path, tmp_path: Path) -> None:
+    """The task reads frames through the store's interface only: rendered on demand they give the same scores."""
+    stored, _, _ = _run(tiny_root, tmp_path / "a", predictor="copylast")
+    rendered, _, cfg = _run(tiny_root, tmp_path / "b", "data.frames=on_demand", predictor="copylast")
+    assert DatasetStore.open(cfg.data.dataset_dir()).frames_on_demand
+    for key in ("psnr", "ssim", "rmse"):
+        assert rendered["metrics"][key]["mean"] == stored["metrics"][key]["mean"]

@@ -9,9 +9,11 @@ the backend's backward on the rasterization.
 
 from __future__ import annotations
 
+import collections
+
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -52,6 +54,44 @@ def camera_tensors(cameras: Sequence[Camera], dtype: torch.dtype = torch.float64
     return Ks, Rs, ts, centers
 
 
+_SETUP_CACHE: "collections.OrderedDict[bytes, Any]" = collections.OrderedDict()
+_SETUP_CACHE_SIZE = 16
+
+
+def _camera_key(cameras: Sequence[Camera]) -> bytes:
+    """The cameras' values as bytes: equal rigs (e.g. the same training views every stage-2 iteration) share a key."""
+    parts = []
+    for c in cameras:
+        parts += [np.ascontiguousarray(c.K, np.float64).tobytes(), np.ascontiguousarray(c.R, np.float64).tobytes(),
+                  np.ascontiguousarray(c.t, np.float64).tobytes(), np.array([c.width, c.height], np.float64).tobytes()]  # fmt: skip
+    return b"".join(parts)
+
+
+def _camera_setup(cameras: Sequence[Camera]) -> dict[str, Any]:
+    """`check_cameras` and `camera_tensors` of a rig (and, once asked for, the cpu backend's `CameraArrays`), done once
+    per distinct rig, a few recent ones kept: validating the rotations and building the tensors every call cost about
+    a tenth of a small render (a `ci` stage-2 iteration renders the same 4 training views each time)."""
+    key = _camera_key(cameras)
+    hit = _SETUP_CACHE.get(key)
+    if hit is None:
+        width, height = check_cameras(cameras)
+        hit = {"width": width, "height": height, "tensors": camera_tensors(cameras), "arrays": None}
+        _SETUP_CACHE[key] = hit
+        while len(_SETUP_CACHE) > _SETUP_CACHE_SIZE:
+            _SETUP_CACHE.popitem(last=False)
+    _SETUP_CACHE.move_to_end(key)
+    return hit
+
+
+def _camera_arrays(setup: dict[str, Any]) -> Any:
+    """The cpu backend's `CameraArrays` of a rig, made once and kept with its `_camera_setup` entry."""
+    from clods_bench.plugins.splatting.fast_cpu import CameraArrays
+
+    if setup["arrays"] is None:
+        setup["arrays"] = CameraArrays.from_tensors(*setup["tensors"][:3], setup["width"], setup["height"])
+    return setup["arrays"]
+
+
 def render_gaussians(
     means: Tensor,  # (G,3) world-space centres
     covars: Tensor | None,  # (G,3,3) world-space covariances (PSD; flat / rank-deficient allowed), or None
@@ -90,10 +130,10 @@ def render_gaussians(
     G = check_gaussians(means, covars, opacities, colors)
     check_device(means, backend)
     degree = sh_degree_of(colors, sh_degree)
-    width, height = check_cameras(cameras)
+    setup = _camera_setup(cameras)
+    width, height, (Ks, Rs, ts, centers) = setup["width"], setup["height"], setup["tensors"]
     dtype = means.dtype
     bg = background_tensor(background, len(cameras), dtype)
-    Ks, Rs, ts, centers = camera_tensors(cameras)
     if backend == "gsplat":
         from clods_bench.plugins.splatting.gsplat_backend import render_gsplat
 
@@ -105,9 +145,9 @@ def render_gaussians(
     rgb_cg = view_colors(colors, means, centers, degree).to(dtype)  # (C,G,3)
     opac_cg = opacities.to(dtype)[None].expand(len(cameras), G)  # (C,G)
     if backend == "cpu":
-        from clods_bench.plugins.splatting.fast_cpu import CameraArrays, splat_fast
+        from clods_bench.plugins.splatting.fast_cpu import splat_fast
 
-        cams = CameraArrays.from_tensors(Ks, Rs, ts, width, height)
+        cams = _camera_arrays(setup)
         color, alpha, dacc, radii = splat_fast(means, covars, opac_cg, rgb_cg, cams, near=near, tile=tile)
     else:
         from clods_bench.plugins.splatting.reference import rasterize_reference
