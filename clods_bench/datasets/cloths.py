@@ -29,7 +29,7 @@ import numpy as np
 
 from clods_bench.datasets.mesh_io import flatten_rest, read_triangle_mesh
 from clods_bench.datasets.meshes import make_cylinder_mesh, make_flag_mesh, make_flagsimple_mesh
-from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, edges_from_cells
+from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, edge_use_counts, edges_from_cells
 from clods_bench.errors import ClodsError
 
 Resolution = tuple[int, int] | str
@@ -263,8 +263,7 @@ def _check_faces(cells: np.ndarray, rest: np.ndarray, where: str) -> None:
 
 
 def _check_manifold(cells: np.ndarray, num: int, where: str) -> None:
-    e = np.sort(np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]]), axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
+    edges, counts = edge_use_counts(cells)
     if np.any(counts > 2):
         bad = edges[counts > 2]
         raise ClodsError(

@@ -18,6 +18,7 @@ missing chunk file is an error, never the zero fill value zarr would silently re
 
 from __future__ import annotations
 
+import abc
 import hashlib
 import os
 import shutil
@@ -185,7 +186,7 @@ def _grid(shape: Sequence[int], chunks: Sequence[int]) -> int:
 Index = int | slice | Sequence[int] | np.ndarray
 
 
-class FrameArray:
+class FrameArray(abc.ABC):
     """What a trajectory's frames (T, N, H, W, 3) uint8 offer a task, however they are obtained: `shape`, `read`
     (orthogonal selection), and numpy-like indexing on the time and camera axes."""
 
@@ -221,13 +222,13 @@ class FrameArray:
         rest = (0 if isinstance(t_key, (int, np.integer)) else slice(None), 0 if isinstance(v_key, (int, np.integer)) else slice(None))
         return out[(*rest, *key[2:])]
 
-    def read(self, times: Index, views: Index) -> np.ndarray:  # pragma: no cover - every subclass defines it
+    @abc.abstractmethod
+    def read(self, times: Index, views: Index) -> np.ndarray:
         """(len(times), len(views), H, W, 3): every selected frame of every selected camera (ints keep their axis)."""
-        raise NotImplementedError
 
-    def verify(self) -> None:  # pragma: no cover
+    @abc.abstractmethod
+    def verify(self) -> None:
         """Check whatever backs the frames; ClodsError naming what is wrong."""
-        raise NotImplementedError
 
 
 class LazyFrames(FrameArray):

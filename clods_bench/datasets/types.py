@@ -135,3 +135,15 @@ def edges_from_cells(cells: np.ndarray) -> np.ndarray:
     e = np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]], axis=0).astype(np.int64)
     e = np.sort(e, axis=1)
     return np.unique(e, axis=0)
+
+
+def edge_use_counts(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique undirected edges (E,2) as `edges_from_cells`, how many triangles use each): 1 on the rim, 2 inside."""
+    e = np.sort(np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]], axis=0).astype(np.int64), axis=1)
+    return np.unique(e, axis=0, return_counts=True)
+
+
+def boundary_nodes(cells: np.ndarray) -> np.ndarray:
+    """Sorted nodes on an edge that only one triangle uses (the rim of an open sheet)."""
+    edges, counts = edge_use_counts(cells)
+    return np.unique(edges[counts == 1])

@@ -142,3 +142,18 @@ def test_bad_files_name_the_path(tmp_path):
         mesh_from_file(bad)
     with pytest.raises(ClodsError, match="unknown mesh format"):
         export_sequence(_trajectory(make_flag_mesh(3, 3)), tmp_path, "stl")  # type: ignore[arg-type]
+
+
+def test_edge_use_counts_and_rim_of_a_grid_against_a_count_by_hand() -> None:
+    from clods_bench.datasets.types import boundary_nodes, edge_use_counts, edges_from_cells
+
+    mesh = make_flag_mesh(4, 3)  # 4 x 3 nodes: 12, of which only the 2 middle ones are off the rim
+    edges, counts = edge_use_counts(mesh.cells)
+    np.testing.assert_array_equal(edges, edges_from_cells(mesh.cells))
+    by_hand = {}
+    for tri in mesh.cells:
+        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
+            key = (min(a, b), max(a, b))
+            by_hand[key] = by_hand.get(key, 0) + 1
+    assert {tuple(e): int(c) for e, c in zip(edges.tolist(), counts)} == by_hand
+    assert set(boundary_nodes(mesh.cells).tolist()) == set(range(12)) - {5, 6}

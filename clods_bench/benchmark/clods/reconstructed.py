@@ -76,7 +76,7 @@ def detect_handles(frames: np.ndarray, mesh_pos: np.ndarray, cells: np.ndarray) 
     out, and the nodes of a slanted side that leave the box's band come back). A per-node
     motion threshold does not work here: at `ci` the extracted pole nodes drift 2-7 cm over 31 frames and nodes next
     to the pole as little (see the README)."""
-    from clods_bench.datasets.types import edges_from_cells
+    from clods_bench.datasets.types import boundary_nodes, edges_from_cells
 
     tracks = np.asarray(frames, np.float64)
     moved = np.linalg.norm(tracks - tracks[:1], axis=2).max(axis=0)
@@ -88,7 +88,7 @@ def detect_handles(frames: np.ndarray, mesh_pos: np.ndarray, cells: np.ndarray) 
     tri = np.asarray(cells)
     e = edges_from_cells(tri)
     spacing = float(np.median(np.linalg.norm(mp[e[:, 0]] - mp[e[:, 1]], axis=1)))
-    boundary = _boundary_nodes(tri)
+    boundary = boundary_nodes(tri)
     sides = []
     for a in (0, 1):
         band = SIDE_BAND * spacing
@@ -109,13 +109,6 @@ def detect_handles(frames: np.ndarray, mesh_pos: np.ndarray, cells: np.ndarray) 
             return side
         on_line = found
     return on_line
-
-
-def _boundary_nodes(cells: np.ndarray) -> np.ndarray:
-    """Nodes on an edge that only one triangle uses (the sheet's rim), sorted."""
-    e = np.sort(np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(e, axis=0, return_counts=True)
-    return np.unique(unique[counts == 1])
 
 
 def orient_material_coords(mesh_pos: np.ndarray, handles: np.ndarray, world0: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from clods_bench.datasets.cloths import validate_cloth_mesh
-from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, edges_from_cells
+from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, boundary_nodes, edges_from_cells
 from clods_bench.errors import ClodsError
 
 
@@ -160,9 +160,7 @@ def _snap_boundary(
 
     tree = cKDTree(uv)
     spacing = float(np.median(tree.query(uv, k=2)[0][:, 1]))
-    e = np.sort(np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]]), axis=1)
-    edges, counts = np.unique(e, axis=0, return_counts=True)
-    boundary = np.unique(edges[counts == 1])
+    boundary = boundary_nodes(cells)
     dist, idx = tree.query(nodes_uv[boundary])
     far = dist > spacing
     b, q, dist = boundary[far], uv[idx[far]], dist[far]

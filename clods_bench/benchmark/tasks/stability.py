@@ -224,8 +224,8 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     frames = horizon_frames(splits.num_steps, scfg.horizon_factor)
     ids = list(splits.unviewed)
     curve_rows: list[dict[str, float]] = []
+    loss_of = _loss_at_step(work / f"{name}_train_log.json") if snaps else None
     if snaps:
-        loss_of = _loss_at_step(work / f"{name}_train_log.json")
         with Progress(transient=True, disable=not cfg.progress) as bar:
             job = bar.add_task(f"training curve ({name}, {len(snaps)} snapshots)", total=len(snaps))
             for step, path in snaps[:-1]:  # the last snapshot is the final model, scored below
@@ -240,7 +240,7 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     results = list(per_traj.values())
     metrics = _summary(results, frames)
     if snaps:
-        curve_rows.append({"step": float(snaps[-1][0]), "train_loss": _loss_at_step(work / f"{name}_train_log.json")(snaps[-1][0]), **metrics})
+        curve_rows.append({"step": float(snaps[-1][0]), "train_loss": loss_of(snaps[-1][0]), **metrics})  # type: ignore[misc]
     timings = {"fit_seconds": fit_seconds, "fit_wall_seconds": fit_wall, "infer_ms_per_step": 1000.0 * infer_seconds / max(infer_steps, 1), "infer_seconds": infer_seconds}
     timings.update({f"fit/{k}": float(v) for k, v in (fit_stats or {}).items()})
     curves = {

@@ -26,27 +26,13 @@ def mesh_digest(topology_keys: Iterable[str]) -> str:
 
 def save_checkpoint(path: Path, simulator: str, config_digest: str, meshes: str, trainer_state: dict[str, Any], extra: dict[str, Any]) -> None:
     """Write the checkpoint in one atomic rename (a crash leaves the previous one intact)."""
-    payload = {
-        "format": CHECKPOINT_FORMAT,
-        "simulator": simulator,
-        "config_digest": config_digest,
-        "mesh_digest": meshes,
-        "trainer": trainer_state,
-        "extra": extra,
-    }
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    _write(path, simulator, config_digest, meshes, trainer=trainer_state, extra=extra)
 
 
 def load_checkpoint(path: Path, simulator: str, config_digest: str, meshes: str) -> dict[str, Any]:
     """The checkpoint's payload, after checking it belongs to this simulator, config and meshes."""
     hint = "delete it (or use another work directory) to train from scratch"
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
-        raise ClodsError(f"unreadable checkpoint ({type(exc).__name__}: {exc})", where=str(path), hint=hint) from None
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise ClodsError("not a clods-bench learned-simulator checkpoint (format mismatch)", where=str(path), hint=hint)
+    payload = _read(path, "checkpoint", "trainer", hint)
     if payload["simulator"] != simulator:
         raise ClodsError(
             f"checkpoint was written by simulator '{payload['simulator']}', not '{simulator}'", where=str(path), hint=hint
@@ -77,10 +63,7 @@ def snapshot_path(work_dir: Path, step: int) -> Path:
 def save_snapshot(work_dir: Path, step: int, simulator: str, config_digest: str, meshes: str, model_state: dict[str, Any]) -> Path:
     """Write the model weights (with the normalisers' statistics) after `step`, atomically; returns the path."""
     path = snapshot_path(work_dir, step)
-    payload = {"format": CHECKPOINT_FORMAT, "simulator": simulator, "config_digest": config_digest, "mesh_digest": meshes,
-               "step": int(step), "model": model_state}  # fmt: skip
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    _write(path, simulator, config_digest, meshes, step=int(step), model=model_state)
     return path
 
 
@@ -99,13 +82,26 @@ def list_snapshots(work_dir: Path) -> list[tuple[int, Path]]:
 def load_snapshot(path: Path, simulator: str, config_digest: str, meshes: str) -> dict[str, Any]:
     """The model weights of a snapshot, after the same checks as `load_checkpoint`."""
     hint = "delete the snapshots folder to take them again"
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
-        raise ClodsError(f"unreadable snapshot ({type(exc).__name__}: {exc})", where=str(path), hint=hint) from None
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT or "model" not in payload:
-        raise ClodsError("not a clods-bench learned-simulator snapshot (format mismatch)", where=str(path), hint=hint)
+    payload = _read(path, "snapshot", "model", hint)
     for key, want in (("simulator", simulator), ("config_digest", config_digest), ("mesh_digest", meshes)):
         if payload.get(key) != want:
             raise ClodsError(f"snapshot {key} {payload.get(key)!r} differs from this run's {want!r}", where=str(path), hint=hint)
     return payload["model"]
+
+
+def _write(path: Path, simulator: str, config_digest: str, meshes: str, **content: Any) -> None:
+    """Save a checkpoint or snapshot payload (format, owner, digests and `content`) in one atomic rename."""
+    payload = {"format": CHECKPOINT_FORMAT, "simulator": simulator, "config_digest": config_digest, "mesh_digest": meshes, **content}
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+
+
+def _read(path: Path, kind: str, content_key: str, hint: str) -> dict[str, Any]:
+    """A payload `_write` saved, holding `content_key`; one ClodsError naming the file if it is unreadable or foreign."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
+        raise ClodsError(f"unreadable {kind} ({type(exc).__name__}: {exc})", where=str(path), hint=hint) from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT or content_key not in payload:
+        raise ClodsError(f"not a clods-bench learned-simulator {kind} (format mismatch)", where=str(path), hint=hint)
+    return payload
