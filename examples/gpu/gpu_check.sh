@@ -1,17 +1,19 @@
 #!/usr/bin/env bash
-# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs]`.
+# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs] [surfels]`.
 #   build: compile gsplat's CUDA kernels (JIT, first use) and time it
 #   test:  the splatting and renderer tests, the gsplat-vs-cpu agreement tests among them (-rs lists skips)
 #   bench: `clods-bench bench render` with the gsplat column at the issue's size (8 views, 128 px, with the
 #          torch reference) and at the paper's image size (30 views, 800 px, cpu vs gsplat)
 #   fit:   examples/gpu/paper_size_fit.py: GaMeS / SMGS fit and stage-2 step at 25 views of 800 px, cpu vs GPU
 #   nvs:   `clods-bench run nvs --preset ci` for smgs on the GPU (device cuda, backend gsplat) and on the CPU
+#   surfels: the 2DGS surfel backend: gsplat's 2DGS kernels against the cpu backend, stage 0 of a bent flag on both,
+#          and `clods-bench run initial_mesh --preset ci` (seed 0) with the surfel fit on gsplat and on the CPU
 # Logs go to $OUT (default ./gpu-check). Needs: clods-bench installed, gsplat, torch with CUDA, nvcc.
 set -uo pipefail
 OUT=${OUT:-gpu-check}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-$(nproc)}
-stages=${*:-build test bench fit nvs}
+stages=${*:-build test bench fit nvs surfels}
 log() { tee -a "$OUT/$1"; }
 for stage in $stages; do
   case $stage in
@@ -33,6 +35,12 @@ for stage in $stages; do
           --no-progress --set runs_dir="/tmp/gpu-check-runs-$device" --set renderer_config.smgs.backend=$backend \
           --set renderer_config.smgs.device=$device 2>&1 | log nvs.txt
       done ;;
-    *) echo "unknown stage '$stage' (known: build test bench fit nvs)" >&2; exit 2 ;;
+    surfels)
+      python3 -m pytest -q -rs -m "slow or not slow" tests/plugins/splatting/test_surfel_gsplat.py tests/benchmark/clods/test_stage0.py 2>&1 | log surfels.txt
+      for backend in gsplat cpu; do
+        /usr/bin/time -f "run initial_mesh backend=$backend: %e s" clods-bench run initial_mesh --preset ci --no-progress \
+          --set seeds=[0] --set runs_dir="/tmp/gpu-check-runs-s0-$backend" --set task_config.initial_mesh.backend=$backend 2>&1 | log surfels.txt
+      done ;;
+    *) echo "unknown stage '$stage' (known: build test bench fit nvs surfels)" >&2; exit 2 ;;
   esac
 done

@@ -50,6 +50,9 @@ class Stage0Config:
     """Weight of the D-SSIM term of the surfel fit (2DGS uses 0.2; at ci it triples the time and changes nothing)."""
     seed: int = 0
     """Seed of the surfel initialisation and the hull sampling."""
+    backend: str = "cpu"
+    """Surfel renderer of the fit: 'cpu' (numba) or 'gsplat' (gsplat's 2DGS kernels on a CUDA GPU; depth is then
+    each surfel's centre depth, see `plugins/splatting/surfel_gsplat.py`)."""
 
     def validate(self) -> None:
         """Raise ClodsError naming the first field out of range."""
@@ -61,6 +64,7 @@ class Stage0Config:
             ("voxel_size", self.voxel_size is None or self.voxel_size > 0),
             ("num_nodes", self.num_nodes is None or self.num_nodes >= 4),
             ("lambda_dssim", 0 <= self.lambda_dssim <= 1),
+            ("backend", self.backend in ("cpu", "gsplat")),
         ):
             if not ok:
                 raise ClodsError(f"value {getattr(self, name)!r} is out of range", where=f"{WHERE}.{name}")
@@ -131,8 +135,9 @@ def reconstruct_initial_mesh(
     points = hull[pick] + rng.uniform(-0.5 * cell, 0.5 * cell, (pick.size, 3))
     t_hull = time.perf_counter() - t0
     params, history = fit_surfels(torch.from_numpy(img), list(cameras), torch.from_numpy(points), None, cfg.iterations,
-                                  background=tuple(background), lambda_dssim=cfg.lambda_dssim, seed=cfg.seed)  # fmt: skip
-    depth, alpha = (a.numpy() for a in surfel_depth_maps(params, list(cameras)))
+                                  background=tuple(background), lambda_dssim=cfg.lambda_dssim, seed=cfg.seed,
+                                  backend=cfg.backend)  # fmt: skip
+    depth, alpha = (a.cpu().numpy() for a in surfel_depth_maps(params, list(cameras), backend=cfg.backend))
     depth = np.where((alpha > 0.5) & (depth > 0) & masks, depth, np.inf)  # inside the silhouettes only: no floaters
     t_fit = time.perf_counter() - t0 - t_hull
     voxel = cfg.voxel_size or 0.5 * cell

@@ -5,7 +5,8 @@ initial cloth mesh comes from TSDF fusion of the fitted surfels' median-depth ma
 Kept simple: one surfel per given point, Adam on L1 (+ D-SSIM) + the 2DGS normal-consistency and
 depth-distortion regularisers (`surfels.surfel_losses`), no densification, transparent surfels pruned at
 the end. Parameterisation: opacity = sigmoid(logit), scales = exp(log-scale), colours = sigmoid(logit),
-quaternions (w, x, y, z) raw (the renderer normalises them). Runs in float64 on the CPU.
+quaternions (w, x, y, z) raw (the renderer normalises them). Runs in float64 on the CPU, or with
+backend 'gsplat' on the CUDA GPU (parameters and images there; gsplat composites in float32).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def _logit(x: Tensor) -> Tensor:
 
 def ssim(a: Tensor, b: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
     """Mean SSIM of (N,H,W,3) images with a Gaussian window (3DGS `ssim`, zero padding)."""
-    x = torch.arange(window, dtype=a.dtype) - window // 2
+    x = torch.arange(window, dtype=a.dtype, device=a.device) - window // 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
     g = g / g.sum()
     k = (g[:, None] * g[None, :]).expand(3, 1, window, window).contiguous()
@@ -135,9 +136,10 @@ def fit_surfels(
         history: per-iteration lists 'loss', 'l1', 'normal', 'distortion'.
     """
     _check_fit_inputs(images, cameras, init_points, init_colors, iterations)
-    target = images.detach().to(F64)
-    raw = {k: v.requires_grad_(True) for k, v in init_surfels(init_points, init_colors, seed, init_opacity).items()}
-    lo, hi = init_points.detach().to(F64).min(0).values, init_points.detach().to(F64).max(0).values
+    dev = torch.device("cuda") if backend == "gsplat" and torch.cuda.is_available() else torch.device("cpu")
+    target = images.detach().to(device=dev, dtype=F64)
+    raw = {k: v.to(dev).requires_grad_(True) for k, v in init_surfels(init_points, init_colors, seed, init_opacity).items()}
+    lo, hi = init_points.detach().cpu().to(F64).min(0).values, init_points.detach().cpu().to(F64).max(0).values
     extent = max(float((hi - lo).norm()), 1e-6)
     lrs = {"means": lr_means * extent, "quats": lr_quats, "log_scales": lr_scales, "opacity_logits": lr_opacity, "color_logits": lr_colors}
     opt = torch.optim.Adam([{"params": [raw[k]], "lr": lr, "name": k} for k, lr in lrs.items()], eps=1e-15)
@@ -162,7 +164,7 @@ def fit_surfels(
         if callback is not None:
             callback(it, rec)
     with torch.no_grad():
-        p = {k: v.detach().clone() for k, v in activate(raw).items()}
+        p = {k: v.detach().cpu().clone() for k, v in activate(raw).items()}
         p["quats"] = torch.nn.functional.normalize(p["quats"], dim=-1)
         keep = p["opacities"] >= prune_opacity
         p = {k: v[keep] for k, v in p.items()}

@@ -3,7 +3,8 @@
 Why: stage 0 of CloDS fits surfels to the first frame and fuses their median-depth maps (TSDF) into the
 initial cloth mesh; 2DGS gives view-consistent, geometrically accurate depth where 3D Gaussians do not.
 Entry point `render_surfels` -> `SurfelOutput`, with backends 'cpu' (numba forward/backward,
-`surfel_kernels`, one torch.autograd.Function) and 'reference' (plain torch, autograd; small scenes only).
+`surfel_kernels`, one torch.autograd.Function), 'reference' (plain torch, autograd; small scenes only) and
+'gsplat' (gsplat's 2DGS kernels on CUDA after the same projection; its differences in `surfel_gsplat`).
 Both share the torch per-view preprocessing `project_surfels` (autograd carries its gradient to means,
 quats and scales), so the numba backward only differentiates the per-pixel compositing.
 
@@ -56,8 +57,8 @@ from clods_bench.plugins.splatting.projection import quat_to_rotmat
 from clods_bench.plugins.splatting.rasterize import camera_tensors
 from clods_bench.plugins.splatting.reference import tile_walk
 
-SurfelBackend = Literal["cpu", "reference"]
-BACKENDS = ("cpu", "reference")
+SurfelBackend = Literal["cpu", "reference", "gsplat"]
+BACKENDS = ("cpu", "reference", "gsplat")
 
 CUTOFF = 3.0  # footprint radius in local sigmas (rho <= CUTOFF^2); the bounding boxes cover it
 FILTER_SIZE = math.sqrt(2.0) / 2.0  # low-pass filter std dev in px (2DGS FilterSize)
@@ -106,7 +107,8 @@ def project_surfels(
     u^2 + v^2 = 9 under M) and the low-pass footprint (3 FILTER_SIZE px around the projected centre).
     """
     f64 = torch.float64
-    Ks, Rs, ts, centers = camera_tensors(cameras, f64)
+    dev = means.device
+    Ks, Rs, ts, centers = (x.to(dev) for x in camera_tensors(cameras, f64))
     W, H = int(cameras[0].width), int(cameras[0].height)
     p, s = means.to(f64), scales.to(f64)
     rot = quat_to_rotmat(quats.to(f64))  # (G,3,3)
@@ -125,7 +127,7 @@ def project_surfels(
         facing_away = (n * (p[None] - centers[:, None, :])).sum(-1) > 0
     normals = torch.where(facing_away[..., None], -n, n)
 
-    Mn = M.detach().numpy()
+    Mn = M.detach().cpu().numpy()
     Tu, Tv, Tw = Mn[..., 0, :], Mn[..., 1, :], Mn[..., 2, :]
     c2 = CUTOFF * CUTOFF
     with np.errstate(all="ignore"):
@@ -134,14 +136,14 @@ def project_surfels(
         py = (c2 * (Tv[..., 0] * Tw[..., 0] + Tv[..., 1] * Tw[..., 1]) - Tv[..., 2] * Tw[..., 2]) / dist
         ex = np.sqrt(np.maximum(1e-4, px * px - (c2 * (Tu[..., 0] ** 2 + Tu[..., 1] ** 2) - Tu[..., 2] ** 2) / dist))
         ey = np.sqrt(np.maximum(1e-4, py * py - (c2 * (Tv[..., 0] ** 2 + Tv[..., 1] ** 2) - Tv[..., 2] ** 2) / dist))
-        m2 = means2d.detach().numpy()
+        m2 = means2d.detach().cpu().numpy()
         rl = CUTOFF * FILTER_SIZE
         x_lo = np.minimum(px - ex, m2[..., 0] - rl) - BOX_MARGIN
         x_hi = np.maximum(px + ex, m2[..., 0] + rl) + BOX_MARGIN
         y_lo = np.minimum(py - ey, m2[..., 1] - rl) - BOX_MARGIN
         y_hi = np.maximum(py + ey, m2[..., 1] + rl) + BOX_MARGIN
-        valid = ok_z.numpy() & (dist < 0) & np.isfinite(x_lo + x_hi + y_lo + y_hi)
-        valid &= (opacities.detach().to(f64).numpy() >= ALPHA_MIN)[None, :]
+        valid = ok_z.cpu().numpy() & (dist < 0) & np.isfinite(x_lo + x_hi + y_lo + y_hi)
+        valid &= (opacities.detach().to(f64).cpu().numpy() >= ALPHA_MIN)[None, :]
         lo_x = np.clip(np.nan_to_num(np.ceil(x_lo - 0.5)), 0, W)
         hi_x = np.clip(np.nan_to_num(np.floor(x_hi - 0.5)), -1, W - 1)
         lo_y = np.clip(np.nan_to_num(np.ceil(y_lo - 0.5)), 0, H)
@@ -340,23 +342,28 @@ def render_surfels(
             non-positive scales or opacities outside [0, 1] raise ClodsError naming the argument.
         cameras: C pinhole cameras sharing one image size.
         background: (3,) or (C,3) colour behind the surfels; a tensor gets gradients.
-        backend: 'cpu' (numba kernels) or 'reference' (plain torch; small scenes).
+        backend: 'cpu' (numba kernels), 'reference' (plain torch; small scenes) or 'gsplat' (gsplat's 2DGS
+            kernels on CUDA, differences in `surfel_gsplat`; inputs may be on the CPU or a GPU).
         near: surfels with centre z <= near are culled; ray hits must lie beyond it.
 
     Returns:
-        SurfelOutput of (C,H,W,.) maps in the dtype of `means`.
+        SurfelOutput of (C,H,W,.) maps in the dtype and on the device of `means`.
     """
     if backend not in BACKENDS:
         raise ClodsError(f"unknown backend '{backend}'; known: {', '.join(BACKENDS)}", where="backend")
     if not (isinstance(near, (int, float)) and math.isfinite(near) and near > 0):
         raise ClodsError(f"near plane must be a positive number, got {near}", where="near")
     _check_inputs(means, quats, scales, opacities, colors)
-    for x, name in ((quats, "quats"), (scales, "scales"), (opacities, "opacities"), (colors, "colors")):
-        if x.device.type != "cpu" or means.device.type != "cpu":
-            raise ClodsError(f"the surfel renderer runs on the CPU, got tensors on {x.device}", where=name)
+    if backend != "gsplat":
+        for x, name in ((means, "means"), (quats, "quats"), (scales, "scales"), (opacities, "opacities"), (colors, "colors")):
+            if x.device.type != "cpu":
+                raise ClodsError(f"backend '{backend}' runs on the CPU, got tensors on {x.device}", where=name,
+                                 hint="use backend='gsplat' for CUDA tensors")  # fmt: skip
     width, height = check_cameras(cameras)
-    dtype = means.dtype
+    dtype, device = means.dtype, means.device
     f64 = torch.float64
+    if backend == "gsplat":
+        return _render_gsplat(means, quats, scales, opacities, colors, cameras, background, near, width, height)
     bg = background_tensor(background, len(cameras), f64)
     proj = project_surfels(means, quats, scales, opacities, cameras, near)
     col, opac = colors.to(f64), opacities.to(f64)
@@ -370,17 +377,52 @@ def render_surfels(
     depth_expected = raster[..., 4:5] / alpha.clamp(min=1e-10)
     out = SurfelOutput(rgb=rgb, alpha=alpha, depth_median=raster[..., 9:10], depth_expected=depth_expected,
                        normal=raster[..., 5:8], distortion=raster[..., 8:9])  # fmt: skip
-    if dtype != f64:
-        out = SurfelOutput(**{k: getattr(out, k).to(dtype) for k in out.__dataclass_fields__})
-    return out
+    return _cast(out, dtype, device)
+
+
+def _cast(out: SurfelOutput, dtype: torch.dtype, device: torch.device) -> SurfelOutput:
+    """`out` with every map in `dtype` on `device` (autograd follows)."""
+    return SurfelOutput(**{k: getattr(out, k).to(device=device, dtype=dtype) for k in out.__dataclass_fields__})
+
+
+def unmapped_depth(m: Tensor) -> Tensor:
+    """Camera z of a 2DGS-mapped depth m (inverse of `mapped_depth`)."""
+    return DIST_NEAR / (1.0 - m * (DIST_FAR - DIST_NEAR) / DIST_FAR)
+
+
+def _render_gsplat(means, quats, scales, opacities, colors, cameras, background, near, width, height) -> SurfelOutput:
+    """render_surfels through gsplat's 2DGS kernels (`surfel_gsplat`), maps returned like the CPU backends'."""
+    from clods_bench.plugins.splatting import gsplat_backend
+    from clods_bench.plugins.splatting.surfel_gsplat import INSTALL_HINT, raster_surfels_gsplat
+
+    ok, why = gsplat_backend.gsplat_available()
+    if not ok:
+        raise ClodsError(INSTALL_HINT, where="render_surfels(backend='gsplat')", hint=why)
+    f64 = torch.float64
+    dev = gsplat_backend.gpu_for(means)
+    m, q, s, o, c = (x.to(dev) for x in (means, quats, scales, opacities, colors))
+    bg = background_tensor(background, len(cameras), f64).to(dev)
+    proj = project_surfels(m, q, s, o, cameras, near)
+    valid = torch.from_numpy(proj.valid).to(dev)
+    mapped = mapped_depth(torch.where(valid, proj.depths, torch.ones_like(proj.depths)))  # culled: never read
+    r = raster_surfels_gsplat(proj.M, proj.means2d, proj.depths, mapped, proj.normals, c.to(f64), o.to(f64),
+                              torch.from_numpy(proj.boxes), width, height, TILE)  # fmt: skip
+    r = {k: v.to(f64) for k, v in r.items()}
+    alpha = r["alpha"]
+    median = torch.where(alpha > MEDIAN_T, unmapped_depth(r["mapped_median"]), torch.zeros_like(alpha))
+    out = SurfelOutput(rgb=r["color"] + (1.0 - alpha) * bg[:, None, None, :], alpha=alpha, depth_median=median,
+                       depth_expected=r["depth_acc"] / alpha.clamp(min=1e-10), normal=r["normal"],
+                       distortion=r["distortion"])  # fmt: skip
+    return _cast(out, means.dtype, means.device)
 
 
 def depth_points(depth: Tensor, cameras: Sequence[Camera]) -> Tensor:
     """(C,H,W,3) world points of (C,H,W) or (C,H,W,1) camera-z depth maps (pixel centres)."""
     d = depth[..., 0] if depth.dim() == 4 else depth
     C, H, W = d.shape
-    Ks, Rs, ts, _ = camera_tensors(cameras, d.dtype)
-    cc, rr = torch.meshgrid(torch.arange(W, dtype=d.dtype) + 0.5, torch.arange(H, dtype=d.dtype) + 0.5, indexing="xy")
+    Ks, Rs, ts, _ = (x.to(d.device) for x in camera_tensors(cameras, d.dtype))
+    cc, rr = torch.meshgrid(torch.arange(W, dtype=d.dtype, device=d.device) + 0.5,
+                            torch.arange(H, dtype=d.dtype, device=d.device) + 0.5, indexing="xy")  # fmt: skip
     x = (cc[None] - Ks[:, 0, 2, None, None]) / Ks[:, 0, 0, None, None]
     y = (rr[None] - Ks[:, 1, 2, None, None]) / Ks[:, 1, 1, None, None]
     pc = torch.stack([x, y, torch.ones_like(x)], dim=-1) * d[..., None]  # (C,H,W,3) camera space

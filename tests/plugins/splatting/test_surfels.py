@@ -282,7 +282,7 @@ def test_bad_input_names_the_argument(change, where: str) -> None:
 def test_bad_options_name_the_argument() -> None:
     scene = _random_scene(3, seed=6)
     cams = camera_rig(1, np.zeros(3), 3.0, 8, 8)
-    for kw, where in (({"backend": "gsplat"}, "backend"), ({"near": 0.0}, "near"), ({"background": (1.0, 0.0)}, "background")):
+    for kw, where in (({"backend": "vulkan"}, "backend"), ({"near": 0.0}, "near"), ({"background": (1.0, 0.0)}, "background")):
         with pytest.raises(ClodsError) as e:
             render_surfels(*scene, cams, **kw)
         assert e.value.where == where
