@@ -145,15 +145,18 @@ class LocalExecutor:
 class RayExecutor:
     """Runs jobs as Ray tasks: on an existing cluster (`address`), the one this process joined, or a local one it starts.
 
-    Each task asks for `cpus_per_task` CPUs and, when the cluster has GPUs, one GPU.
+    Each task asks for `cpus_per_task` CPUs; a job that uses CUDA (`job_uses_gpu`) also asks for `gpu_share` of a GPU
+    when the cluster has GPUs (default $CLODS_BENCH_RAY_GPU_SHARE or 0.25), so CPU and GPU jobs pack onto one machine.
     """
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, cpus_per_task: float = 1.0, num_cpus: int | None = None) -> None:
+    def __init__(self, address: str | None = None, cpus_per_task: float = 1.0, num_cpus: int | None = None,
+                 gpu_share: float | None = None) -> None:  # fmt: skip
         self.address = address
         self.cpus_per_task = cpus_per_task
         self.num_cpus = num_cpus
+        self.gpu_share = gpu_share_from_env() if gpu_share is None else float(gpu_share)
 
     def _ray(self) -> Any:
         try:
@@ -173,14 +176,16 @@ class RayExecutor:
             ray.init(log_to_driver=False, include_dashboard=False, **kwargs)
             started = True
         try:
-            gpus = 1 if ray.cluster_resources().get("GPU", 0) >= 1 else 0
-            remote = ray.remote(num_cpus=self.cpus_per_task, num_gpus=gpus, max_retries=0)(fn)
-            refs = [remote.remote(item) for item in items]
+            has_gpu = ray.cluster_resources().get("GPU", 0) > 0
+            remote = ray.remote(num_cpus=self.cpus_per_task, num_gpus=0, max_retries=0)(fn)
+            shares = [self.gpu_share if has_gpu and job_uses_gpu(item) else 0.0 for item in items]
+            refs = [remote.options(num_gpus=share).remote(item) if share else remote.remote(item) for item, share in zip(items, shares)]
+            gpus = f"{sum(1 for x in shares if x)} of them on a GPU share of {self.gpu_share:g}" if has_gpu else "no GPU"
             index = {ref: i for i, ref in enumerate(refs)}
             out: list[Any] = [None] * len(refs)
             pending = list(refs)
             with Progress(disable=not progress) as bar:
-                task = bar.add_task(f"jobs (ray, {gpus} GPU/task)", total=len(refs))
+                task = bar.add_task(f"jobs (ray, {gpus})", total=len(refs))
                 while pending:
                     done, pending = ray.wait(pending, num_returns=1)
                     for ref in done:
@@ -196,6 +201,39 @@ class RayExecutor:
         finally:
             if started:
                 ray.shutdown()
+
+
+GPU_SHARE_ENV = "CLODS_BENCH_RAY_GPU_SHARE"
+GPU_SHARE_DEFAULT = 0.25  # a GPU job asks Ray for this much of one GPU: 4 of them share a GPU at once
+
+
+def gpu_share_from_env() -> float:
+    """The GPU share of a GPU job under Ray: $CLODS_BENCH_RAY_GPU_SHARE (0 < share <= 1), else GPU_SHARE_DEFAULT."""
+    raw = os.environ.get(GPU_SHARE_ENV)
+    if raw is None:
+        return GPU_SHARE_DEFAULT
+    try:
+        share = float(raw)
+    except ValueError:
+        share = float("nan")
+    if not 0.0 < share <= 1.0:
+        raise ClodsError(f"must be a number in (0, 1], got {raw!r}", where=f"${GPU_SHARE_ENV}")
+    return share
+
+
+def job_uses_gpu(item: Any) -> bool:
+    """Whether a (run, seed) job asks for CUDA: a renderer with device 'cuda' or backend 'gsplat', or a stage-0 surfel
+    fit on 'gsplat'. Under Ray only these get a GPU share; the others (physics, learned simulators, video
+    predictors, CPU renderers) take none and run beside them on the machine's other cores."""
+    if not isinstance(item, SeedJob):
+        return False
+    cfg = item.config
+    for opts in (cfg.get("renderer_config") or {}).values():
+        if isinstance(opts, dict) and (opts.get("device") == "cuda" or opts.get("backend") == "gsplat"):
+            return True
+    task = cfg.get("task_config") or {}
+    stage0 = [task.get("initial_mesh") or {}, (task.get("clods") or {}).get("stage0") or {}]
+    return any(isinstance(opts, dict) and opts.get("backend") == "gsplat" for opts in stage0)
 
 
 def make_executor(name: str, address: str | None = None, jobs: int = 1) -> LocalExecutor | RayExecutor:

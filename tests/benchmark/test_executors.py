@@ -124,3 +124,38 @@ def test_a_complete_dataset_of_an_edited_scene_is_not_reused(tiny_root: Path) ->
     with pytest.raises(ClodsError, match="different config"):
         ensure_complete_dataset(cfg, EditedRegistry(), progress=False)
     assert ensure_complete_dataset(cfg, registry, progress=False).completed_indices() == before
+
+
+def _gpu_ids(_item) -> list:
+    import ray
+
+    return list(ray.get_gpu_ids())
+
+
+def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a cluster that declares a GPU, jobs with a CUDA renderer or a gsplat surfel fit get it (a share each), the
+    others none; the share comes from $CLODS_BENCH_RAY_GPU_SHARE, which must lie in (0, 1]."""
+    ray = pytest.importorskip("ray")
+    from clods_bench.benchmark.executors import GPU_SHARE_ENV, RayExecutor, SeedJob, job_uses_gpu
+
+    jobs = [
+        SeedJob({"renderer_config": {"smgs": {"device": "cuda", "backend": "gsplat"}}}, 0, "smgs on cuda"),
+        SeedJob({"renderer_config": {"smgs": {"backend": "cpu"}}, "task_config": {}}, 0, "smgs on cpu"),
+        SeedJob({"task_config": {"clods": {"stage0": {"backend": "gsplat"}}}}, 0, "stage 0 on gsplat"),
+        SeedJob({"task_config": {"initial_mesh": {"backend": "cpu"}}}, 0, "stage 0 on cpu"),
+    ]
+    assert [job_uses_gpu(j) for j in jobs] == [True, False, True, False]
+    assert not job_uses_gpu("data generation item")
+    monkeypatch.setenv(GPU_SHARE_ENV, "0.5")
+    executor = RayExecutor()
+    assert executor.gpu_share == 0.5
+    ray.init(num_cpus=2, num_gpus=1, include_dashboard=False, log_to_driver=False)  # a declared GPU: Ray schedules, nothing runs on it
+    try:
+        seen = executor.map(_gpu_ids, jobs, progress=False)
+    finally:
+        ray.shutdown()
+    assert [len(ids) for ids in seen] == [1, 0, 1, 0]
+    for bad in ("0", "1.5", "half"):
+        monkeypatch.setenv(GPU_SHARE_ENV, bad)
+        with pytest.raises(ClodsError, match=GPU_SHARE_ENV.replace("$", "")):
+            RayExecutor()
