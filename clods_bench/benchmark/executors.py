@@ -222,14 +222,17 @@ def gpu_share_from_env() -> float:
 
 
 def job_uses_gpu(item: Any) -> bool:
-    """Whether a (run, seed) job asks for CUDA: a renderer with device 'cuda' or backend 'gsplat', or a stage-0 surfel
-    fit on 'gsplat'. Under Ray only these get a GPU share; the others (physics, learned simulators, video
-    predictors, CPU renderers) take none and run beside them on the machine's other cores."""
+    """Whether a (run, seed) job asks for CUDA: a renderer with device 'cuda' or backend 'gsplat', a learned simulator
+    with device 'cuda[:N]', or a stage-0 surfel fit on 'gsplat'. Under Ray only these get a GPU share; the others
+    (physics, CPU simulators and renderers, video predictors) take none and run beside them on the other cores."""
     if not isinstance(item, SeedJob):
         return False
     cfg = item.config
     for opts in (cfg.get("renderer_config") or {}).values():
         if isinstance(opts, dict) and (opts.get("device") == "cuda" or opts.get("backend") == "gsplat"):
+            return True
+    for opts in (cfg.get("sim_config") or {}).values():
+        if isinstance(opts, dict) and str(opts.get("device", "cpu")).startswith("cuda"):
             return True
     task = cfg.get("task_config") or {}
     stage0 = [task.get("initial_mesh") or {}, (task.get("clods") or {}).get("stage0") or {}]

@@ -45,6 +45,7 @@ def sim_fit_identity(ctx: TaskContext, train_ids: list[int], frames: int, sim_co
     mapping = dict(cfg.sim_config.get(cfg.sim, {}) if sim_config is None else sim_config)
     resolved = spec.make_config(mapping, where=f"sim_config.{cfg.sim}")
     values = dataclasses.asdict(resolved) if dataclasses.is_dataclass(resolved) else mapping
+    values.pop("device", None)  # where a simulator trains (CPU or a GPU) does not decide the model: a fit serves both
     return fit_identity(ctx, str(cfg.sim), values, train_ids, frames, **extra)
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs] [surfels]`.
+# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs] [surfels] [sims]`.
 #   build: compile gsplat's CUDA kernels (JIT, first use) and time it
 #   test:  the splatting and renderer tests, the gsplat-vs-cpu agreement tests among them (-rs lists skips)
 #   bench: `clods-bench bench render` with the gsplat column at the issue's size (8 views, 128 px, with the
@@ -8,12 +8,13 @@
 #   nvs:   `clods-bench run nvs --preset ci` for smgs on the GPU (device cuda, backend gsplat) and on the CPU
 #   surfels: the 2DGS surfel backend: gsplat's 2DGS kernels against the cpu backend, stage 0 of a bent flag on both,
 #          and `clods-bench run initial_mesh --preset ci` (seed 0) with the surfel fit on gsplat and on the CPU
+#   sims:  the learned simulators on CUDA against the CPU (MGN, BSMS), then MGN's `small` training speed on both
 # Logs go to $OUT (default ./gpu-check). Needs: clods-bench installed, gsplat, torch with CUDA, nvcc.
 set -uo pipefail
 OUT=${OUT:-gpu-check}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-$(nproc)}
-stages=${*:-build test bench fit nvs surfels}
+stages=${*:-build test bench fit nvs surfels sims}
 log() { tee -a "$OUT/$1"; }
 for stage in $stages; do
   case $stage in
@@ -41,6 +42,13 @@ for stage in $stages; do
         /usr/bin/time -f "run initial_mesh backend=$backend: %e s" clods-bench run initial_mesh --preset ci --no-progress \
           --set seeds=[0] --set runs_dir="/tmp/gpu-check-runs-s0-$backend" --set task_config.initial_mesh.backend=$backend 2>&1 | log surfels.txt
       done ;;
-    *) echo "unknown stage '$stage' (known: build test bench fit nvs surfels)" >&2; exit 2 ;;
+    sims)
+      python3 -m pytest -q -rs tests/plugins/simulators/test_mgn.py -k "gpu or device" 2>&1 | log sims.txt
+      for device in cuda cpu; do
+        /usr/bin/time -f "run stability mgn small, 500 steps, device=$device: %e s" clods-bench run stability --sim mgn --preset small \
+          --no-progress --set seeds=[0] --set runs_dir="/tmp/gpu-check-runs-sim-$device" --set sim_config.mgn.train_steps=500 \
+          --set sim_config.mgn.warmup_steps=100 --set sim_config.mgn.device=$device 2>&1 | grep -E "train_seconds|rmse|max_strain|wall|s$" | log sims.txt
+      done ;;
+    *) echo "unknown stage '$stage' (known: build test bench fit nvs surfels sims)" >&2; exit 2 ;;
   esac
 done

@@ -6,8 +6,7 @@
 # (data.frames=on_demand: meshes + render setup on disk), the CloDS* row (`run cdg --sim mgn --renderer smgs
 # --train-subset first_half`: the videos of training trajectory 0 only) with SMGS on BACKEND/DEVICE (default gsplat/cuda) and MGN's
 # stage-3 training cut to STAGE3_STEPS steps, all of them with the paper's 8-step rollout loss (its per-step time is
-# what the estimate needs). STEPS (optional) cuts the
-# trajectories to that many frames. The learned simulators train on the CPU (they have no GPU path yet).
+# what the estimate needs), MGN on DEVICE too. STEPS (optional) cuts the trajectories to that many frames.
 #
 #   bash examples/gpu/paper_trajectory.sh                                   # on a GPU machine
 #   PRESET=ci BACKEND=cpu DEVICE=cpu bash examples/gpu/paper_trajectory.sh  # the same steps, small, on a CPU
@@ -29,7 +28,7 @@ mkdir -p "$OUT"
 /usr/bin/time -f "data generate: %e s wall" clods-bench data generate "${common[@]}" --jobs "${JOBS:-2}" 2>&1 | tee -a "$OUT/log.txt"
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
   --train-subset first_half "${common[@]}" --set seeds=[0] --set runs_dir="$OUT/runs" --label "CloDS* (one paper-size trajectory)" \
-  --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" \
+  --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$DEVICE" \
   --set task_config.clods.sim_overrides.train_steps="$STAGE3_STEPS" \
   --set task_config.clods.sim_overrides.warmup_steps=$((STAGE3_STEPS / 5)) --set task_config.clods.sim_overrides.rollout_start_step=0 \
   2>&1 | tee -a "$OUT/log.txt"
@@ -42,7 +41,7 @@ steps = t.get("fit/stage3/train_steps", 0)
 print(f"stage 1 (renderer fit on frame 0): {t['fit/stage1_cost_seconds']:.1f} s")
 print(f"stage 2 (mesh extraction): {t['fit/stage2_ms_per_frame']:.1f} ms per frame, {t['fit/stage2_iterations_per_frame']:.1f} "
       f"iterations per frame, {t['fit/stage2_frames']:.0f} frames")
-print(f"stage 3 (MGN on the extracted meshes, 8-step rollout loss, CPU): {t['fit/stage3/train_seconds']:.1f} s for "
+print(f"stage 3 (MGN on the extracted meshes, 8-step rollout loss): {t['fit/stage3/train_seconds']:.1f} s for "
       f"{steps:.0f} steps = {1000 * t['fit/stage3/train_seconds'] / max(steps - warmup, 1):.1f} ms per optimiser step "
       f"(the {warmup} warm-up steps only feed the normalisers)")
 print(f"rollout: {t['infer_ms_per_step']:.2f} ms per step")

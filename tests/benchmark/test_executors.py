@@ -143,8 +143,9 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
         SeedJob({"renderer_config": {"smgs": {"backend": "cpu"}}, "task_config": {}}, 0, "smgs on cpu"),
         SeedJob({"task_config": {"clods": {"stage0": {"backend": "gsplat"}}}}, 0, "stage 0 on gsplat"),
         SeedJob({"task_config": {"initial_mesh": {"backend": "cpu"}}}, 0, "stage 0 on cpu"),
+        SeedJob({"sim_config": {"mgn": {"device": "cuda:0"}}}, 0, "mgn on cuda"),
     ]
-    assert [job_uses_gpu(j) for j in jobs] == [True, False, True, False]
+    assert [job_uses_gpu(j) for j in jobs] == [True, False, True, False, True]
     assert not job_uses_gpu("data generation item")
     monkeypatch.setenv(GPU_SHARE_ENV, "0.5")
     executor = RayExecutor()
@@ -154,7 +155,7 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
         seen = executor.map(_gpu_ids, jobs, progress=False)
     finally:
         ray.shutdown()
-    assert [len(ids) for ids in seen] == [1, 0, 1, 0]
+    assert [len(ids) for ids in seen] == [1, 0, 1, 0, 1]
     for bad in ("0", "1.5", "half"):
         monkeypatch.setenv(GPU_SHARE_ENV, bad)
         with pytest.raises(ClodsError, match=GPU_SHARE_ENV.replace("$", "")):

@@ -344,3 +344,46 @@ def test_foreign_snapshots_are_clear_errors(windless: Trajectory, tmp_path: Path
     bad.write_bytes(b"torn")
     with pytest.raises(ClodsError, match="unreadable snapshot"):
         sim.use_snapshot(bad)
+
+
+# --- device ----------------------------------------------------------------------------------------
+
+
+def test_device_option_is_checked_and_does_not_change_the_model_identity(windless: Trajectory, tmp_path: Path) -> None:
+    assert MgnConfig(device="cpu").digest() == MgnConfig().digest() == MgnConfig(device="cuda:1").digest()
+    for bad in ("gpu", "cuda:x", "CPU", 0):
+        with pytest.raises(ClodsError) as e:
+            MgnConfig(device=bad).validate()
+        assert e.value.where == "sim_config.mgn.device"
+    if torch.cuda.is_available():
+        return
+    with pytest.raises(ClodsError, match="torch sees no CUDA GPU") as e:
+        mgn(train_steps=8, device="cuda").fit([windless], FitContext(work_dir=tmp_path, seed=0, progress=False))
+    assert e.value.where == "sim_config.mgn.device" and not (tmp_path / "mgn.ckpt").exists()
+
+
+@pytest.mark.parametrize("name", ["mgn", "bsms"])
+def test_training_and_rollout_on_a_gpu_match_the_cpu(windless: Trajectory, tmp_path: Path, name: str) -> None:
+    """The same seed on the CPU and on CUDA: the same initial weights, batches and noise, so losses, weights and a
+    rollout agree to float32 rounding; a GPU-written checkpoint resumes on the CPU."""
+    if not torch.cuda.is_available():
+        pytest.skip("needs a CUDA GPU")
+    cfg = dict(train_steps=20, checkpoint_every=10, batch_size=2)
+
+    def build(device: str):
+        if name == "mgn":
+            return mgn(**cfg, device=device)
+        return build_bsms(BsmsConfig(latent_size=16, hidden_layers=1, levels=2, warmup_steps=2, num_threads=1, device=device, **cfg),
+                          SimpleNamespace(scene=PINNED))  # fmt: skip
+
+    cpu, gpu = build("cpu"), build("cuda")
+    s_cpu = cpu.fit([windless], FitContext(work_dir=tmp_path / "cpu", seed=1, progress=False))
+    s_gpu = gpu.fit([windless], FitContext(work_dir=tmp_path / "gpu", seed=1, progress=False))
+    assert s_gpu["final_loss"] == pytest.approx(s_cpu["final_loss"], rel=1e-3)
+    for a, b in zip(_params(cpu), _params(gpu)):
+        torch.testing.assert_close(b.cpu(), a, rtol=1e-3, atol=1e-5)
+    inp = RolloutInput.from_trajectory(windless)
+    np.testing.assert_allclose(gpu.rollout(inp)[:12], cpu.rollout(inp)[:12], atol=1e-4)
+    again = build("cpu")  # the GPU's checkpoint, finished: loads on the CPU and rolls out the same
+    again.fit([windless], FitContext(work_dir=tmp_path / "gpu", seed=1, progress=False))
+    np.testing.assert_allclose(again.rollout(inp)[:12], gpu.rollout(inp)[:12], atol=1e-5)

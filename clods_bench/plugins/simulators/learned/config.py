@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 from dataclasses import dataclass
 from typing import Literal
 
@@ -58,6 +59,9 @@ class LearnedConfig:
     """Write a resumable checkpoint every this many steps (and at the end)."""
     num_threads: int | None = None
     """torch CPU threads while training and rolling out; None leaves torch's setting."""
+    device: str = "cpu"
+    """Where the network trains and rolls out: 'cpu', 'cuda' or 'cuda:N' (weights are initialised on the CPU, so
+    both start from the same model; the noise and batches come from the same CPU generator)."""
 
     def validate(self, where: str = "sim_config") -> None:
         """Raise ClodsError naming the first field out of range."""
@@ -78,6 +82,17 @@ class LearnedConfig:
                 raise ClodsError(f"must be >= 0, got {getattr(self, name)!r}", where=f"{where}.{name}")
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads!r}", where=f"{where}.num_threads")
+        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
+            raise ClodsError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", where=f"{where}.device")
+
+    def torch_device(self, where: str = "sim_config") -> "torch.device":
+        """The configured device, checked to exist (ClodsError naming the field when CUDA is asked for but absent)."""
+        import torch
+
+        if self.device != "cpu" and not torch.cuda.is_available():
+            raise ClodsError(f"device '{self.device}' asked for, but torch sees no CUDA GPU", where=f"{where}.device",
+                             hint="install a CUDA build of torch on a GPU machine, or use device: cpu")  # fmt: skip
+        return torch.device(self.device)
 
     def learning_rate_at(self, step: int) -> float:
         """MGN's exponential decay, horizon scaled to `train_steps`: lr0 * rate^(step / horizon) + floor."""
@@ -85,9 +100,9 @@ class LearnedConfig:
         return self.learning_rate * self.lr_decay_rate ** (step / horizon) + self.lr_floor
 
     def digest(self) -> str:
-        """Hash of the options that change the trained model (not checkpoint frequency or threads)."""
+        """Hash of the options that change the trained model (not checkpoint frequency, threads or device)."""
         values = dataclasses.asdict(self)
-        for key in ("checkpoint_every", "num_threads"):
+        for key in ("checkpoint_every", "num_threads", "device"):
             values.pop(key)
         values["__class__"] = type(self).__name__
         return hashlib.sha256(json.dumps(values, sort_keys=True, default=str).encode()).hexdigest()[:16]

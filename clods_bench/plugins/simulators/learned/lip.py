@@ -43,7 +43,7 @@ def check_connected(topo: Topology, pos: np.ndarray, spec: GraphSpec, where: str
     if spec.radius_factor is None:
         raise ClodsError("the graph spec has no radius (a mesh graph)", where="lip check_connected", hint="use lip_spec(config)")
     radius = spec.radius_factor * topo.rest_spacing
-    x = torch.as_tensor(np.asarray(pos, dtype=np.float32))
+    x = torch.as_tensor(np.asarray(pos, dtype=np.float32), device=topo.rest_spacing.device)
     senders, _ = radius_edges(x, topo.sample, radius, spec.max_neighbours)
     if senders.numel() == 0:
         d = torch.cdist(x, x).fill_diagonal_(float("inf")).min(dim=1).values

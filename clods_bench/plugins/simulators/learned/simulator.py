@@ -58,7 +58,7 @@ class LearnedSimulator:
         self.scene_has_handles = bool(getattr(scene, "has_handles", True))
         self.spec = spec if spec is not None else GraphSpec.for_scene(scene, config.world_radius)
         self.processor_factory = processor_factory
-        self.cache = TopologyCache()
+        self.cache = TopologyCache(config.device)
         self.model: LearnedModel | None = None
         self.dt: float | None = None
         self._digests: tuple[str, str] | None = None  # (config, training meshes) of the last fit: snapshots must match
@@ -98,8 +98,9 @@ class LearnedSimulator:
         """Train (or resume training) on `train`; return train_seconds, final_loss, train_steps and more."""
         cfg = self.config
         dt = self._check_training_data(train)
+        device = cfg.torch_device(f"sim_config.{self.name}")
         with torch_threads(cfg.num_threads):
-            model = self.build_model(ctx.seed)
+            model = self.build_model(ctx.seed).to(device)
             window = cfg.rollout_length if cfg.loss == "rollout" else 1
             data = TrainingData(train, self.cache, window)
             trainer = Trainer(model, cfg, data, ctx.seed)
@@ -176,13 +177,14 @@ class LearnedSimulator:
         out = np.empty(inp.kinematic_pos.shape, dtype=np.float32)
         out[:2] = inp.init_pos
         key, topo = self.cache.get(inp.cells, inp.mesh_pos, inp.node_type)
-        kin = torch.as_tensor(np.asarray(inp.kinematic_pos, dtype=np.float32))
-        prev = torch.as_tensor(out[0])
-        cur = torch.as_tensor(out[1])
+        dev = topo.normal.device
+        kin = torch.as_tensor(np.asarray(inp.kinematic_pos, dtype=np.float32), device=dev)
+        prev = torch.as_tensor(out[0], device=dev)
+        cur = torch.as_tensor(out[1], device=dev)
         with torch_threads(self.config.num_threads), torch.no_grad():
             for t in range(2, inp.num_frames):
                 nxt = self.model.step(topo, key, cur, prev, kin[t])
-                out[t] = nxt.numpy()
+                out[t] = nxt.cpu().numpy()
                 if not torch.isfinite(nxt).all():
                     free = inp.node_type == NORMAL
                     out[t + 1 :] = inp.kinematic_pos[t + 1 :]

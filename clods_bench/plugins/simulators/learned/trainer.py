@@ -53,7 +53,7 @@ class TrainingData:
 
     def __init__(self, trajectories: Sequence[Trajectory], cache: TopologyCache, window: int) -> None:
         self.window = window  # predicted steps per sample (1 for the one-step loss)
-        self.pos = [torch.as_tensor(t.world_pos, dtype=torch.float32) for t in trajectories]
+        self.pos = [torch.as_tensor(t.world_pos, dtype=torch.float32, device=cache.device) for t in trajectories]
         self.keys = [cache.get(t.cells, t.mesh_pos, t.node_type)[0] for t in trajectories]
         self.cache = cache
         index = [(i, t) for i, traj in enumerate(trajectories) for t in range(1, traj.num_steps - window)]
@@ -101,8 +101,8 @@ class Trainer:
         """A random batch and its noise (V,3), zero on non-NORMAL nodes."""
         rows = torch.randint(len(self.data), (self.config.batch_size,), generator=self.generator)
         batch = self.data.batch(rows)
-        noise = torch.randn(batch.frames.shape[1:], generator=self.generator) * self.config.noise_std
-        return batch, noise * batch.topo.normal.unsqueeze(1)
+        noise = torch.randn(batch.frames.shape[1:], generator=self.generator) * self.config.noise_std  # CPU generator
+        return batch, noise.to(batch.frames.device) * batch.topo.normal.unsqueeze(1)
 
     def accumulate_only(self, batch: Batch, noise: torch.Tensor) -> None:
         """Warm-up: feed the sample's statistics to the normalisers without running the network."""
