@@ -222,21 +222,28 @@ def gpu_share_from_env() -> float:
 
 
 def job_uses_gpu(item: Any) -> bool:
-    """Whether a (run, seed) job asks for CUDA: a renderer with device 'cuda' or backend 'gsplat', a learned simulator
-    with device 'cuda[:N]', or a stage-0 surfel fit on 'gsplat'. Under Ray only these get a GPU share; the others
-    (physics, CPU simulators and renderers, video predictors) take none and run beside them on the other cores."""
+    """Whether a (run, seed) job asks for CUDA: its renderer with device 'cuda' or backend 'gsplat', its simulator or
+    video predictor with device 'cuda[:N]', or a stage-0 surfel fit on 'gsplat' (only the plugins the run names
+    count: an override for every run of a plan sets options of plugins most runs never build). Under Ray only these
+    get a GPU share; the others (physics, CPU simulators, renderers and predictors) take none and run beside them
+    on the other cores."""
     if not isinstance(item, SeedJob):
         return False
     cfg = item.config
-    for opts in (cfg.get("renderer_config") or {}).values():
-        if isinstance(opts, dict) and (opts.get("device") == "cuda" or opts.get("backend") == "gsplat"):
-            return True
-    for opts in (cfg.get("sim_config") or {}).values():
-        if isinstance(opts, dict) and str(opts.get("device", "cpu")).startswith("cuda"):
-            return True
+
+    def opts(section: str, plugin: str) -> dict[str, Any]:
+        got = (cfg.get(section) or {}).get(cfg.get(plugin) or "")
+        return got if isinstance(got, dict) else {}
+
+    renderer = opts("renderer_config", "renderer")
+    if renderer.get("device") == "cuda" or renderer.get("backend") == "gsplat":
+        return True
+    if any(str(opts(section, plugin).get("device", "cpu")).startswith("cuda") for section, plugin in
+           (("sim_config", "sim"), ("video_config", "predictor"))):  # fmt: skip
+        return True
     task = cfg.get("task_config") or {}
     stage0 = [task.get("initial_mesh") or {}, (task.get("clods") or {}).get("stage0") or {}]
-    return any(isinstance(opts, dict) and opts.get("backend") == "gsplat" for opts in stage0)
+    return any(isinstance(o, dict) and o.get("backend") == "gsplat" for o in stage0)
 
 
 def make_executor(name: str, address: str | None = None, jobs: int = 1) -> LocalExecutor | RayExecutor:

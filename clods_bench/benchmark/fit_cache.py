@@ -57,6 +57,7 @@ def predictor_fit_identity(ctx: TaskContext, train_ids: list[int], views: list[i
     mapping = dict(cfg.video_config.get(cfg.predictor, {}))
     resolved = spec.make_config(mapping, where=f"video_config.{cfg.predictor}")
     values = dataclasses.asdict(resolved) if dataclasses.is_dataclass(resolved) else mapping
+    values.pop("device", None)  # as for simulators: a fit on the CPU or a GPU serves both
     return {
         "predictor": str(cfg.predictor),
         "predictor_config": values,

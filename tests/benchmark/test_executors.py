@@ -139,13 +139,15 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
     from clods_bench.benchmark.executors import GPU_SHARE_ENV, RayExecutor, SeedJob, job_uses_gpu
 
     jobs = [
-        SeedJob({"renderer_config": {"smgs": {"device": "cuda", "backend": "gsplat"}}}, 0, "smgs on cuda"),
-        SeedJob({"renderer_config": {"smgs": {"backend": "cpu"}}, "task_config": {}}, 0, "smgs on cpu"),
+        SeedJob({"renderer": "smgs", "renderer_config": {"smgs": {"device": "cuda", "backend": "gsplat"}}}, 0, "smgs on cuda"),
+        SeedJob({"renderer": "smgs", "renderer_config": {"smgs": {"backend": "cpu"}, "games": {"device": "cuda"}}}, 0, "smgs on cpu"),
         SeedJob({"task_config": {"clods": {"stage0": {"backend": "gsplat"}}}}, 0, "stage 0 on gsplat"),
         SeedJob({"task_config": {"initial_mesh": {"backend": "cpu"}}}, 0, "stage 0 on cpu"),
-        SeedJob({"sim_config": {"mgn": {"device": "cuda:0"}}}, 0, "mgn on cuda"),
+        SeedJob({"sim": "mgn", "sim_config": {"mgn": {"device": "cuda:0"}}}, 0, "mgn on cuda"),
+        SeedJob({"sim": "constvel", "predictor": "tau", "video_config": {"tau": {"device": "cuda"}}, "sim_config": {"mgn": {"device": "cuda"}}}, 0, "tau on cuda"),
     ]
-    assert [job_uses_gpu(j) for j in jobs] == [True, False, True, False, True]
+    assert [job_uses_gpu(j) for j in jobs] == [True, False, True, False, True, True]
+    assert not job_uses_gpu(SeedJob({"sim": "constvel", "sim_config": {"mgn": {"device": "cuda"}}}, 0, "constvel"))  # mgn's option: not its plugin
     assert not job_uses_gpu("data generation item")
     monkeypatch.setenv(GPU_SHARE_ENV, "0.5")
     executor = RayExecutor()
@@ -155,7 +157,7 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
         seen = executor.map(_gpu_ids, jobs, progress=False)
     finally:
         ray.shutdown()
-    assert [len(ids) for ids in seen] == [1, 0, 1, 0, 1]
+    assert [len(ids) for ids in seen] == [1, 0, 1, 0, 1, 1]
     for bad in ("0", "1.5", "half"):
         monkeypatch.setenv(GPU_SHARE_ENV, bad)
         with pytest.raises(ClodsError, match=GPU_SHARE_ENV.replace("$", "")):

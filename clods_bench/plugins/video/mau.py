@@ -79,7 +79,7 @@ class MauPredictor(WindowPredictor[MauConfig]):
         c = self.cfg.context_frames
         use_truth = None
         if self.cfg.scheduled_sampling:
-            use_truth = torch.from_numpy(rng.random((window.shape[0], c - 1)) < self.truth_probability(step))
+            use_truth = torch.from_numpy(rng.random((window.shape[0], c - 1)) < self.truth_probability(step)).to(window.device)
         pred = model(window[:, :c], c, truth=window[:, c:], use_truth=use_truth)
         return torch.nn.functional.mse_loss(pred, window[:, 1:])
 

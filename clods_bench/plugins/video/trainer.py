@@ -16,6 +16,7 @@ import abc
 import dataclasses
 import hashlib
 import json
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +51,9 @@ class WindowTrainConfig:
     """Steps between checkpoints (0: only at the end)."""
     num_threads: int = 0
     """torch CPU threads while training/predicting (0: leave torch's setting)."""
+    device: str = "cpu"
+    """Where the network trains and predicts: 'cpu', 'cuda' or 'cuda:N' (weights initialised on the CPU from the seed,
+    windows drawn by the same CPU generator; not part of the checkpoint's identity)."""
 
     def validate_training(self, name: str, extra_positive: Sequence[str] = ()) -> None:
         """Raise ClodsError naming the field of `video_config.<name>` when a training option cannot work."""
@@ -60,6 +64,15 @@ class WindowTrainConfig:
             raise ClodsError(f"must be > 0, got {self.learning_rate}", where=f"video_config.{name}.learning_rate")
         if self.checkpoint_every < 0 or self.num_threads < 0:
             raise ClodsError("checkpoint_every and num_threads must be >= 0", where=f"video_config.{name}")
+        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
+            raise ClodsError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", where=f"video_config.{name}.device")
+
+    def torch_device(self, name: str) -> torch.device:
+        """The configured device, checked to exist (ClodsError naming the field when CUDA is asked for but absent)."""
+        if self.device != "cpu" and not torch.cuda.is_available():
+            raise ClodsError(f"device '{self.device}' asked for, but torch sees no CUDA GPU", where=f"video_config.{name}.device",
+                             hint="install a CUDA build of torch on a GPU machine, or use device: cpu")  # fmt: skip
+        return torch.device(self.device)
 
 
 C = TypeVar("C", bound=WindowTrainConfig)
@@ -67,7 +80,9 @@ C = TypeVar("C", bound=WindowTrainConfig)
 
 def config_digest(name: str, cfg: WindowTrainConfig, videos: Sequence[np.ndarray]) -> str:
     """16 hex digits identifying a predictor, its config and its training videos (a checkpoint's owner)."""
-    h = hashlib.sha256(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode())
+    values = dataclasses.asdict(cfg)
+    values.pop("device", None)  # where it trains does not decide the model (and keeps older digests valid)
+    h = hashlib.sha256(json.dumps(values, sort_keys=True).encode())
     if name != "simvp":  # SimVP's digest predates the name; keeping it keeps its checkpoints valid
         h.update(name.encode())
     for v in videos:
@@ -154,8 +169,9 @@ class WindowPredictor(abc.ABC, Generic[C]):
         window = 2 * c.context_frames
         vids, data, starts = training_windows(videos, self.name, c.context_frames, self.downsample_factor(), self.layers_option)
         self.size = (int(data[0].shape[2]), int(data[0].shape[3]))
+        dev = c.torch_device(self.name)
         torch.manual_seed(self.seed)
-        model = self.build_model()
+        model = self.build_model().to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=c.learning_rate)
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=c.learning_rate, total_steps=c.train_steps)
         path = Path(ctx.work_dir) / self.checkpoint_file
@@ -170,7 +186,7 @@ class WindowPredictor(abc.ABC, Generic[C]):
             model.train()
             while step < c.train_steps:
                 pick = rng.integers(len(starts), size=c.batch_size)
-                batch = torch.stack([data[starts[k][0]][starts[k][1] : starts[k][1] + window] for k in pick])
+                batch = torch.stack([data[starts[k][0]][starts[k][1] : starts[k][1] + window] for k in pick]).to(dev)
                 loss = self.loss(model, batch, step, rng)
                 opt.zero_grad()
                 loss.backward()
@@ -251,5 +267,5 @@ class WindowPredictor(abc.ABC, Generic[C]):
             )
         x = torch.from_numpy(np.ascontiguousarray(ctx[:, -c.context_frames :].transpose(0, 1, 4, 2, 3)))
         with torch_threads(c.num_threads or None):
-            pred = self.rollout(self.model, x, num_frames)
-        return pred.permute(0, 1, 3, 4, 2).numpy().astype(np.float32)
+            pred = self.rollout(self.model, x.to(next(self.model.parameters()).device), num_frames)
+        return pred.permute(0, 1, 3, 4, 2).cpu().numpy().astype(np.float32)

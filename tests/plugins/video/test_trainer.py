@@ -124,3 +124,33 @@ def test_bad_sizes_and_checkpoints_are_clear_errors(name: str, tmp_path: Path) -
     (tmp_path / f"{name}.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ClodsError, match=f"unreadable {CLASSES[name].label} checkpoint"):
         make(name).fit([moving_square(frames=8)], FitContext(tmp_path, 0, False))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_device_option_is_checked_and_not_part_of_the_checkpoint_identity(name: str, tmp_path: Path) -> None:
+    from clods_bench.plugins.video.trainer import config_digest
+
+    video = [moving_square(frames=8)]
+    assert config_digest(name, dataclasses.replace(TINY[name], device="cuda"), video) == config_digest(name, TINY[name], video)
+    for bad in ("gpu", "cuda:x"):
+        with pytest.raises(ClodsError) as e:
+            make(name, device=bad)
+        assert e.value.where == f"video_config.{name}.device"
+    if not torch.cuda.is_available():
+        with pytest.raises(ClodsError, match="torch sees no CUDA GPU"):
+            make(name, device="cuda").fit(video, FitContext(tmp_path, 0, False))
+        assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_training_and_prediction_on_a_gpu_match_the_cpu(name: str, tmp_path: Path) -> None:
+    """Same seed and windows on the CPU and on CUDA: losses and predictions agree to float32 rounding."""
+    if not torch.cuda.is_available():
+        pytest.skip("needs a CUDA GPU")
+    video = [moving_square(frames=8)]
+    cpu, gpu = make(name), make(name, device="cuda")
+    s_cpu = cpu.fit(video, FitContext(tmp_path / "cpu", 0, False))
+    s_gpu = gpu.fit(video, FitContext(tmp_path / "gpu", 0, False))
+    assert s_gpu["final_loss"] == pytest.approx(s_cpu["final_loss"], rel=1e-3)
+    context = np.random.default_rng(0).random((2, 4, 16, 16, 3)).astype(np.float32)
+    np.testing.assert_allclose(gpu.predict(context, 5), cpu.predict(context, 5), atol=1e-4)
