@@ -10,11 +10,16 @@ optical axis goes through the image centre.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
 from clods_bench.errors import ClodsError
+
+
+_VALID: "OrderedDict[bytes, None]" = OrderedDict()  # value keys of cameras that passed `Camera.validate`
+_VALID_SIZE = 256
 
 
 @dataclass(frozen=True)
@@ -28,7 +33,28 @@ class Camera:
     height: int
 
     def validate(self, where: str = "camera") -> None:
-        """Raise ClodsError if intrinsics or extrinsics are unusable."""
+        """Raise ClodsError if intrinsics or extrinsics are unusable (a camera of values that passed before is not
+        checked again: renderers validate their cameras on every call, e.g. every stage-2 iteration)."""
+        key = self._value_key()
+        if key is not None and key in _VALID:
+            _VALID.move_to_end(key)
+            return
+        self._check(where)
+        if key is not None:
+            _VALID[key] = None
+            while len(_VALID) > _VALID_SIZE:
+                _VALID.popitem(last=False)
+
+    def _value_key(self) -> bytes | None:
+        """The camera's values as bytes (None when they are not numeric arrays, which `_check` then reports)."""
+        try:
+            parts = [np.ascontiguousarray(x, dtype=np.float64) for x in (self.K, self.R, self.t)]
+            size = np.array([self.width, self.height], dtype=np.float64)
+        except (TypeError, ValueError):
+            return None
+        return b"|".join([str([p.shape for p in parts]).encode(), *(p.tobytes() for p in parts), size.tobytes()])
+
+    def _check(self, where: str) -> None:
         K = np.asarray(self.K, dtype=np.float64)
         if K.shape != (3, 3) or not np.isfinite(K).all():
             raise ClodsError(f"K must be a finite 3x3 matrix, got shape {K.shape}", where=f"{where}.K")

@@ -113,3 +113,20 @@ def test_validate_names_the_bad_field(K, R, t, size, where):
     with pytest.raises(ClodsError) as info:
         Camera(K, R, t, *size).validate(where="cam")
     assert info.value.where == where
+
+
+def test_validation_is_remembered_by_value_and_redone_after_a_change(monkeypatch) -> None:
+    """A camera whose values passed is not checked again (renderers validate every call); a camera whose array was
+    changed in place is checked again and its fault reported."""
+    R, t = look_at(np.array([3.0, 0.0, 1.0]), np.zeros(3))
+    cam = Camera(intrinsics_from_fov(50.0, 16, 16), R, t, 16, 16)
+    cam.validate()
+    calls = []
+    real = Camera._check
+    monkeypatch.setattr(Camera, "_check", lambda self, where: (calls.append(where), real(self, where)))
+    Camera(cam.K.copy(), cam.R.copy(), cam.t.copy(), 16, 16).validate(where="again")
+    assert calls == []
+    cam.R[0, 0] = 5.0  # no longer a rotation
+    with pytest.raises(ClodsError, match="proper rotation"):
+        cam.validate(where="changed")
+    assert calls == ["changed"]
