@@ -46,6 +46,8 @@ def sim_fit_identity(ctx: TaskContext, train_ids: list[int], frames: int, sim_co
     resolved = spec.make_config(mapping, where=f"sim_config.{cfg.sim}")
     values = dataclasses.asdict(resolved) if dataclasses.is_dataclass(resolved) else mapping
     values.pop("device", None)  # where a simulator trains (CPU or a GPU) does not decide the model: a fit serves both
+    if "num_threads" in values:  # nor its thread count (the checkpoint's digest ignores it too): one thread's fit serves all
+        values["num_threads"] = None
     return fit_identity(ctx, str(cfg.sim), values, train_ids, frames, **extra)
 
 

@@ -50,6 +50,10 @@ def test_identity_resolves_defaults_and_separates_what_matters(tiny_root: Path, 
     for changed in (sim_fit_identity(ctx, [0], 9), sim_fit_identity(ctx, [0, 1], 8), sim_fit_identity(ctx, [0, 1], 9, supervision="video")):
         assert fit_work_dir(ctx, changed) != fit_work_dir(ctx, base)
     assert json.loads((fit_work_dir(ctx, base) / "identity.json").read_text())["train_ids"] == [0, 1]
+    # where and on how many threads it trains does not decide the model: one fit serves them all
+    for same_model in ({"num_threads": 1}, {"num_threads": 2, "device": "cuda"}):
+        other = sim_fit_identity(ctx, [0, 1], 9, sim_config={**cfg.sim_config["mgn"], **same_model})
+        assert fit_work_dir(ctx, other) == fit_work_dir(ctx, base)
 
 
 @pytest.mark.parametrize(("wall", "stats", "cost"), [(2.0, {"train_seconds": 5.0}, 5.0), (2.0, {"train_seconds": 1.0}, 2.0), (2.0, {}, 2.0), (2.0, None, 2.0)])
