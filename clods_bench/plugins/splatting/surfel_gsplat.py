@@ -1,6 +1,7 @@
 """Surfel backend 'gsplat': our float64 2DGS projection, then gsplat's 2DGS tile binning and compositing on CUDA.
 
-gsplat is imported lazily; without gsplat or CUDA the call raises a ClodsError saying what to install.
+gsplat is imported lazily; without gsplat or CUDA `render_surfels(backend="gsplat")` raises a ClodsError saying
+what to install.
 As for 3D Gaussians (`gsplat_backend`), the projection is ours (`surfels.project_surfels`, float64 torch,
 autograd for its backward), so both backends composite the same per-view transforms: gsplat's
 `ray_transforms` are exactly our M = K [R | t] H (rows Tu, Tv, Tw; checked against gsplat's own torch
@@ -26,11 +27,6 @@ import math
 
 import torch
 from torch import Tensor
-
-from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting import gsplat_backend
-
-INSTALL_HINT = "surfel backend gsplat needs gsplat and a CUDA GPU: pip install gsplat"
 
 
 def box_radii(means2d: Tensor, boxes: Tensor) -> Tensor:
@@ -58,10 +54,8 @@ def raster_surfels_gsplat(
     tile: int,
 ) -> dict[str, Tensor]:
     """gsplat's 2DGS compositing of projected surfels on the GPU of `M`: {'color' (C,H,W,3) without background,
-    'depth_acc' sum w z, 'mapped_median' m of the median surfel, 'alpha', 'normal' (world), 'distortion'}, float32."""
-    ok, why = gsplat_backend.gsplat_available()
-    if not ok:
-        raise ClodsError(INSTALL_HINT, where="render_surfels(backend='gsplat')", hint=why)
+    'depth_acc' sum w z, 'mapped_median' m of the median surfel, 'alpha', 'normal' (world), 'distortion'}, float32.
+    Called by `surfels.render_surfels`, which has checked that gsplat and CUDA are there."""
     from gsplat.cuda._wrapper import isect_offset_encode, isect_tiles, rasterize_to_pixels_2dgs
 
     f32 = torch.float32

@@ -360,7 +360,6 @@ def render_surfels(
                 raise ClodsError(f"backend '{backend}' runs on the CPU, got tensors on {x.device}", where=name,
                                  hint="use backend='gsplat' for CUDA tensors")  # fmt: skip
     width, height = check_cameras(cameras)
-    dtype, device = means.dtype, means.device
     f64 = torch.float64
     if backend == "gsplat":
         return _render_gsplat(means, quats, scales, opacities, colors, cameras, background, near, width, height)
@@ -372,17 +371,17 @@ def render_surfels(
                                         width, height, float(near))  # fmt: skip
     else:
         raster = raster_reference(proj, col, opac, width, height, float(near))
-    alpha = raster[..., 3:4]
-    rgb = raster[..., 0:3] + (1.0 - alpha) * bg[:, None, None, :]
-    depth_expected = raster[..., 4:5] / alpha.clamp(min=1e-10)
-    out = SurfelOutput(rgb=rgb, alpha=alpha, depth_median=raster[..., 9:10], depth_expected=depth_expected,
-                       normal=raster[..., 5:8], distortion=raster[..., 8:9])  # fmt: skip
-    return _cast(out, dtype, device)
+    return _output(raster[..., 0:3], raster[..., 3:4], raster[..., 4:5], raster[..., 9:10], raster[..., 5:8],
+                   raster[..., 8:9], bg, means)  # fmt: skip
 
 
-def _cast(out: SurfelOutput, dtype: torch.dtype, device: torch.device) -> SurfelOutput:
-    """`out` with every map in `dtype` on `device` (autograd follows)."""
-    return SurfelOutput(**{k: getattr(out, k).to(device=device, dtype=dtype) for k in out.__dataclass_fields__})
+def _output(color: Tensor, alpha: Tensor, depth_acc: Tensor, median: Tensor, normal: Tensor, distortion: Tensor,
+            bg: Tensor, means: Tensor) -> SurfelOutput:  # fmt: skip
+    """The SurfelOutput of raster maps (colour without background, sum w z, ...): background composited, expected
+    depth normalised, every map in the dtype and on the device of `means` (autograd follows)."""
+    maps = {"rgb": color + (1.0 - alpha) * bg[:, None, None, :], "alpha": alpha, "depth_median": median,
+            "depth_expected": depth_acc / alpha.clamp(min=1e-10), "normal": normal, "distortion": distortion}  # fmt: skip
+    return SurfelOutput(**{k: v.to(device=means.device, dtype=means.dtype) for k, v in maps.items()})
 
 
 def unmapped_depth(m: Tensor) -> Tensor:
@@ -393,11 +392,11 @@ def unmapped_depth(m: Tensor) -> Tensor:
 def _render_gsplat(means, quats, scales, opacities, colors, cameras, background, near, width, height) -> SurfelOutput:
     """render_surfels through gsplat's 2DGS kernels (`surfel_gsplat`), maps returned like the CPU backends'."""
     from clods_bench.plugins.splatting import gsplat_backend
-    from clods_bench.plugins.splatting.surfel_gsplat import INSTALL_HINT, raster_surfels_gsplat
+    from clods_bench.plugins.splatting.surfel_gsplat import raster_surfels_gsplat
 
     ok, why = gsplat_backend.gsplat_available()
     if not ok:
-        raise ClodsError(INSTALL_HINT, where="render_surfels(backend='gsplat')", hint=why)
+        raise ClodsError(gsplat_backend.INSTALL_HINT, where="render_surfels(backend='gsplat')", hint=why)
     f64 = torch.float64
     dev = gsplat_backend.gpu_for(means)
     m, q, s, o, c = (x.to(dev) for x in (means, quats, scales, opacities, colors))
@@ -408,12 +407,8 @@ def _render_gsplat(means, quats, scales, opacities, colors, cameras, background,
     r = raster_surfels_gsplat(proj.M, proj.means2d, proj.depths, mapped, proj.normals, c.to(f64), o.to(f64),
                               torch.from_numpy(proj.boxes), width, height, TILE)  # fmt: skip
     r = {k: v.to(f64) for k, v in r.items()}
-    alpha = r["alpha"]
-    median = torch.where(alpha > MEDIAN_T, unmapped_depth(r["mapped_median"]), torch.zeros_like(alpha))
-    out = SurfelOutput(rgb=r["color"] + (1.0 - alpha) * bg[:, None, None, :], alpha=alpha, depth_median=median,
-                       depth_expected=r["depth_acc"] / alpha.clamp(min=1e-10), normal=r["normal"],
-                       distortion=r["distortion"])  # fmt: skip
-    return _cast(out, means.dtype, means.device)
+    median = torch.where(r["alpha"] > MEDIAN_T, unmapped_depth(r["mapped_median"]), torch.zeros_like(r["alpha"]))
+    return _output(r["color"], r["alpha"], r["depth_acc"], median, r["normal"], r["distortion"], bg, means)
 
 
 def depth_points(depth: Tensor, cameras: Sequence[Camera]) -> Tensor:

@@ -16,7 +16,6 @@ import abc
 import dataclasses
 import hashlib
 import json
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ from torch import nn
 
 from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.interfaces import FitContext, check_video
+from clods_bench.devices import check_device_name, torch_device
 from clods_bench.errors import ClodsError
 from clods_bench.threads import torch_threads
 
@@ -64,15 +64,7 @@ class WindowTrainConfig:
             raise ClodsError(f"must be > 0, got {self.learning_rate}", where=f"video_config.{name}.learning_rate")
         if self.checkpoint_every < 0 or self.num_threads < 0:
             raise ClodsError("checkpoint_every and num_threads must be >= 0", where=f"video_config.{name}")
-        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
-            raise ClodsError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", where=f"video_config.{name}.device")
-
-    def torch_device(self, name: str) -> torch.device:
-        """The configured device, checked to exist (ClodsError naming the field when CUDA is asked for but absent)."""
-        if self.device != "cpu" and not torch.cuda.is_available():
-            raise ClodsError(f"device '{self.device}' asked for, but torch sees no CUDA GPU", where=f"video_config.{name}.device",
-                             hint="install a CUDA build of torch on a GPU machine, or use device: cpu")  # fmt: skip
-        return torch.device(self.device)
+        check_device_name(self.device, f"video_config.{name}.device")
 
 
 C = TypeVar("C", bound=WindowTrainConfig)
@@ -169,7 +161,7 @@ class WindowPredictor(abc.ABC, Generic[C]):
         window = 2 * c.context_frames
         vids, data, starts = training_windows(videos, self.name, c.context_frames, self.downsample_factor(), self.layers_option)
         self.size = (int(data[0].shape[2]), int(data[0].shape[3]))
-        dev = c.torch_device(self.name)
+        dev = torch_device(c.device, f"video_config.{self.name}.device")
         torch.manual_seed(self.seed)
         model = self.build_model().to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=c.learning_rate)

@@ -229,13 +229,11 @@ def test_gsplat_glue_depth_is_the_centres_for_slanted_surfels(fake_gsplat) -> No
     torch.testing.assert_close(gs.alpha, cpu.alpha, atol=2e-5, rtol=0)
 
 
-def test_gsplat_backend_without_cuda_says_what_to_install() -> None:
-    ok, _ = gsplat_backend.gsplat_available()
-    if ok:
-        pytest.skip("gsplat and CUDA are available here")
+def test_gsplat_backend_without_cuda_says_what_to_install(monkeypatch) -> None:
+    monkeypatch.setattr(gsplat_backend, "gsplat_available", lambda: (False, "no CUDA GPU (torch.cuda.is_available() is False)"))
     with pytest.raises(ClodsError) as e:
         render_surfels(*_scene(4, seed=0, facing=True), _front_cameras(), backend="gsplat")
-    assert e.value.where == "render_surfels(backend='gsplat')" and "pip install gsplat" in str(e.value)
+    assert e.value.where == "render_surfels(backend='gsplat')" and "pip install gsplat" in str(e.value) and "no CUDA GPU" in str(e.value)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -11,10 +11,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import re
 from dataclasses import dataclass
 from typing import Literal
 
+from clods_bench.devices import check_device_name
 from clods_bench.errors import ClodsError
 
 
@@ -82,17 +82,7 @@ class LearnedConfig:
                 raise ClodsError(f"must be >= 0, got {getattr(self, name)!r}", where=f"{where}.{name}")
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads!r}", where=f"{where}.num_threads")
-        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
-            raise ClodsError(f"must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}", where=f"{where}.device")
-
-    def torch_device(self, where: str = "sim_config") -> "torch.device":
-        """The configured device, checked to exist (ClodsError naming the field when CUDA is asked for but absent)."""
-        import torch
-
-        if self.device != "cpu" and not torch.cuda.is_available():
-            raise ClodsError(f"device '{self.device}' asked for, but torch sees no CUDA GPU", where=f"{where}.device",
-                             hint="install a CUDA build of torch on a GPU machine, or use device: cpu")  # fmt: skip
-        return torch.device(self.device)
+        check_device_name(self.device, f"{where}.device")
 
     def learning_rate_at(self, step: int) -> float:
         """MGN's exponential decay, horizon scaled to `train_steps`: lr0 * rate^(step / horizon) + floor."""

@@ -26,6 +26,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import NORMAL, Trajectory
+from clods_bench.devices import torch_device
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.simulators.learned.checkpoint import (
     list_snapshots,
@@ -98,7 +99,7 @@ class LearnedSimulator:
         """Train (or resume training) on `train`; return train_seconds, final_loss, train_steps and more."""
         cfg = self.config
         dt = self._check_training_data(train)
-        device = cfg.torch_device(f"sim_config.{self.name}")
+        device = torch_device(cfg.device, f"sim_config.{self.name}.device")
         with torch_threads(cfg.num_threads):
             model = self.build_model(ctx.seed).to(device)
             window = cfg.rollout_length if cfg.loss == "rollout" else 1
