@@ -6,7 +6,8 @@
 # (data.frames=on_demand: meshes + render setup on disk), the CloDS* row (`run cdg --sim mgn --renderer smgs
 # --train-subset first_half`: the videos of training trajectory 0 only) with SMGS on BACKEND/DEVICE (default gsplat/cuda) and MGN's
 # stage-3 training cut to STAGE3_STEPS steps, all of them with the paper's 8-step rollout loss (its per-step time is
-# what the estimate needs), MGN on DEVICE too. STEPS (optional) cuts the trajectories to that many frames.
+# what the estimate needs), MGN on SIM_DEVICE (default DEVICE). STEPS (optional) cuts the trajectories to that many frames; EXTRA
+# (optional) adds `--set` options to the CloDS* run (e.g. fewer fit iterations for a smoke test on a CPU).
 #
 #   bash examples/gpu/paper_trajectory.sh                                   # on a GPU machine
 #   PRESET=ci BACKEND=cpu DEVICE=cpu bash examples/gpu/paper_trajectory.sh  # the same steps, small, on a CPU
@@ -18,6 +19,7 @@ PRESET=${PRESET:-paper}
 OUT=${OUT:-paper-trajectory}
 BACKEND=${BACKEND:-gsplat}
 DEVICE=${DEVICE:-cuda}
+SIM_DEVICE=${SIM_DEVICE:-$DEVICE}
 STAGE3_STEPS=${STAGE3_STEPS:-100}
 common=(--preset "$PRESET" --no-progress --set data.num_train=2 --set data.num_test=1 --set data.frames=on_demand
         --set data.root="$OUT/data")
@@ -28,10 +30,10 @@ mkdir -p "$OUT"
 /usr/bin/time -f "data generate: %e s wall" clods-bench data generate "${common[@]}" --jobs "${JOBS:-2}" 2>&1 | tee -a "$OUT/log.txt"
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
   --train-subset first_half "${common[@]}" --set seeds=[0] --set runs_dir="$OUT/runs" --label "CloDS* (one paper-size trajectory)" \
-  --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$DEVICE" \
+  --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$SIM_DEVICE" \
   --set task_config.clods.sim_overrides.train_steps="$STAGE3_STEPS" \
   --set task_config.clods.sim_overrides.warmup_steps=$((STAGE3_STEPS / 5)) --set task_config.clods.sim_overrides.rollout_start_step=0 \
-  2>&1 | tee -a "$OUT/log.txt"
+  ${EXTRA:-} 2>&1 | tee -a "$OUT/log.txt"
 python3 - "$OUT" $((STAGE3_STEPS / 5)) <<'EOF' 2>&1 | tee -a "$OUT/log.txt"
 import json, pathlib, sys
 out, warmup = pathlib.Path(sys.argv[1]), int(sys.argv[2])

@@ -81,6 +81,9 @@ def fit_stage1_keyed(
                 renderer = torch.load(path, map_location="cpu", weights_only=False)
             except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
                 raise ClodsError(f"unreadable stage-1 cache file ({type(exc).__name__}: {exc})", where=str(path), hint="delete it to fit again") from None
+            relocate = getattr(renderer, "relocate", None)  # tensors loaded on the CPU, back to the fit's device
+            if callable(relocate):
+                relocate()
             try:
                 cost = float(json.loads(cost_file.read_text())["seconds"])
             except (OSError, ValueError, KeyError, TypeError):

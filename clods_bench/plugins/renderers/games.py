@@ -176,6 +176,13 @@ class GamesRenderer:
         stats["num_gaussians"] = float(self.num_gaussians)
         return stats
 
+    def relocate(self) -> None:
+        """Put the fitted tensors back on `self.device` after a pickled fit was loaded with map_location='cpu' (the
+        stage-1 cache): the device attribute survives pickling, the tensors land on the CPU."""
+        if self.device.type == "cuda":
+            fit_device(str(self.device), f"renderer_config.{self.name}")  # a clear error when that GPU is absent
+        self._move_to(self.device)
+
     def _move_to(self, device: torch.device) -> None:
         """Move the parameters (as new leaves) and every other tensor attribute to `device`."""
         self.params = {k: leaf_to(p, device) for k, p in self.params.items()}

@@ -39,6 +39,8 @@ class Projection:
     conics: Tensor  # (C,G,3) (a, b, c) of the inverse 2D covariance [[a, b], [b, c]]
     radii: Tensor  # (C,G,2) int32 half extents (x, y) of the bounding box in px; 0 = culled
     valid: Tensor  # (C,G) bool, True where the Gaussian is rendered
+    order: Tensor  # (C,G) float64 camera z, detached: the compositing order (as the CPU kernels sort; a float32 z
+    # ties Gaussians closer than one float32 step and would composite them in index order)
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
@@ -125,6 +127,7 @@ def project_gaussians(
         conics=conics.to(out_dtype),
         radii=radii,
         valid=valid,
+        order=z.detach(),
     )
 
 

@@ -155,7 +155,7 @@ def render_gaussians(
         proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
         bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)
         color, alpha, dacc = rasterize_reference(
-            proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, bounds, width, height, tile
+            proj.means2d, proj.conics, rgb_cg, opac_cg, proj.depths, bounds, width, height, tile, order=proj.order
         )
         radii = proj.radii
     rgb = color + (1.0 - alpha) * bg[:, None, None, :]

@@ -75,6 +75,7 @@ def rasterize_reference(
     width: int,
     height: int,
     tile: int = 16,
+    order: Tensor | None = None,  # (C,G) sort keys front to back (default: depths), e.g. `Projection.order`
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Composite screen-space Gaussians tile by tile in torch; differentiable by autograd.
 
@@ -83,7 +84,7 @@ def rasterize_reference(
     """
     C = means2d.shape[0]
     values, index = [], []
-    for cam, members, pix, flat in tile_walk(depths, bounds, width, height, tile):
+    for cam, members, pix, flat in tile_walk(depths if order is None else order, bounds, width, height, tile):
         values.append(
             composite_tile(
                 pix.to(means2d.dtype), means2d[cam, members], conics[cam, members], colors[cam, members],

@@ -58,12 +58,14 @@ def raster_surfels_gsplat(
     Called by `surfels.render_surfels`, which has checked that gsplat and CUDA are there."""
     from gsplat.cuda._wrapper import isect_offset_encode, isect_tiles, rasterize_to_pixels_2dgs
 
+    from clods_bench.plugins.splatting.gsplat_backend import order_keys
+
     f32 = torch.float32
     C, G = depths.shape
     tiles_x, tiles_y = math.ceil(width / tile), math.ceil(height / tile)
     m2 = means2d.to(f32).contiguous()
     radii = box_radii(means2d.detach(), boxes.to(means2d.device))
-    _, isect_ids, flatten_ids = isect_tiles(m2.detach(), radii, depths.detach().to(f32).contiguous(), tile, tiles_x, tiles_y)
+    _, isect_ids, flatten_ids = isect_tiles(m2.detach(), radii, order_keys(depths), tile, tiles_x, tiles_y)  # float64 order
     offsets = isect_offset_encode(isect_ids, C, tiles_x, tiles_y)
     feats = torch.cat([colors.to(f32)[None].expand(C, G, 3), depths.to(f32)[..., None], mapped.to(f32)[..., None]], dim=-1)
     densify = torch.zeros(C, G, 2, dtype=f32, device=m2.device)

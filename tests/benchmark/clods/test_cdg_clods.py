@@ -98,9 +98,10 @@ def test_warm_start_hands_over_a_copy_of_the_trained_model():
         warm_start(object(), object(), "constvel")
 
 
-def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp_path: Path):
+def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp_path: Path, monkeypatch):
     import torch
 
+    from clods_bench.plugins.renderers.games import GamesRenderer
     from clods_bench.benchmark.clods.pipeline import fit_stage1
     from clods_bench.benchmark.descriptors import TaskContext
     from clods_bench.datasets.store import DatasetStore
@@ -112,7 +113,10 @@ def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp
     images = np.stack([store.load_frames(i)[0, :2] for i in (0, 1)])
     cams = store.cameras()[:2]
     first, s1 = fit_stage1(ctx, trajs, images, cams)
+    moved = []
+    monkeypatch.setattr(GamesRenderer, "relocate", lambda self: moved.append(self.device))
     second, s2 = fit_stage1(ctx, trajs, images, cams)
+    assert moved == [torch.device("cpu")]  # a cached fit goes back to the device it was fitted on
     assert s1["stage1_cached"] == 0.0 and s1["stage1_seconds"] > 0 and s2["stage1_cached"] == 1.0
     v = torch.from_numpy(trajs[0].world_pos[3])
     with torch.no_grad():

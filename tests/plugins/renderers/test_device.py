@@ -100,6 +100,28 @@ def test_every_tensor_of_a_moved_renderer_follows_it(mesh, inputs: str, mesh_gri
     assert {t.device for t in (means, covars, opac, colors, loss)} == {meta}
 
 
+def test_a_cached_fit_loaded_on_the_cpu_goes_back_to_its_device(mesh, tmp_path, monkeypatch) -> None:
+    """Stage 1's cache loads a pickled fit with map_location='cpu'; `relocate` puts its tensors back on the device
+    the fit names (meta stands in for CUDA: without it, Gaussians built for vertices on that device mix devices,
+    the error a cached paper-size run on a GPU hit)."""
+    r = fitted(mesh, SmgsConfig(iterations=0, sh_degree=1), rig(1, 8), cls=SmgsRenderer)
+    torch.save(r, tmp_path / "r.pt")
+    loaded = torch.load(tmp_path / "r.pt", map_location="cpu", weights_only=False)
+    meta = torch.device("meta")
+    loaded.device = meta  # as after a GPU fit: the attribute names the device, the tensors came back on the CPU
+    v = torch.tensor(mesh[0], dtype=torch.float32).to(meta)
+    with pytest.raises(RuntimeError, match="device"):
+        loaded.gaussians(v)
+    loaded.relocate()
+    assert {t.device for t in loaded.gaussians(v)} == {meta} and all(p.is_leaf for p in loaded.params.values())
+    cuda = torch.load(tmp_path / "r.pt", map_location="cpu", weights_only=False)
+    cuda.device = torch.device("cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(ClodsError, match="torch sees no CUDA GPU") as e:
+        cuda.relocate()
+    assert e.value.where == "renderer_config.smgs.device"
+
+
 def test_meta_refuses_a_cpu_operand() -> None:
     """What the test above relies on: an operation mixing meta and CPU tensors raises."""
     with pytest.raises(RuntimeError, match="device"):

@@ -362,16 +362,19 @@ def test_device_option_is_checked_and_does_not_change_the_model_identity(windles
     assert e.value.where == "sim_config.mgn.device" and not (tmp_path / "mgn.ckpt").exists()
 
 
-@pytest.mark.parametrize("name", ["mgn", "bsms"])
+@pytest.mark.parametrize("name", ["mgn", "mgn-rollout", "bsms"])
 def test_training_and_rollout_on_a_gpu_match_the_cpu(windless: Trajectory, tmp_path: Path, name: str) -> None:
     """The same seed on the CPU and on CUDA: the same initial weights, batches and noise, so losses, weights and a
-    rollout agree to float32 rounding; a GPU-written checkpoint resumes on the CPU."""
+    rollout agree to float32 rounding; a GPU-written checkpoint resumes on the CPU. 'mgn-rollout' trains with
+    CloDS's 8-step rollout loss (eq. 8), the loss of stage 3."""
     if not torch.cuda.is_available():
         pytest.skip("needs a CUDA GPU")
     cfg = dict(train_steps=20, checkpoint_every=10, batch_size=2)
+    if name == "mgn-rollout":
+        cfg.update(loss="rollout", rollout_length=8, rollout_start_step=0)
 
     def build(device: str):
-        if name == "mgn":
+        if name.startswith("mgn"):
             return mgn(**cfg, device=device)
         return build_bsms(BsmsConfig(latent_size=16, hidden_layers=1, levels=2, warmup_steps=2, num_threads=1, device=device, **cfg),
                           SimpleNamespace(scene=PINNED))  # fmt: skip

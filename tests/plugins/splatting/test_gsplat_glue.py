@@ -35,13 +35,14 @@ def _fake_gsplat() -> types.ModuleType:
         return isect_ids
 
     def rasterize_to_pixels(means2d, conics, colors, opacities, image_width, image_height, tile_size, isect_offsets, flatten_ids):
-        radii, depths = isect_offsets[:2]
+        radii, keys = isect_offsets[:2]
         assert colors.shape[-1] == 4 and opacities.shape == means2d.shape[:-1]
-        assert torch.equal(colors[..., 3], depths)  # the fourth channel carries the depth
+        G = keys.shape[-1]  # the sort keys are the ranks 1..G of the float64 depths, per camera
+        assert torch.equal(torch.sort(keys, dim=-1).values, torch.arange(1, G + 1, dtype=keys.dtype).expand_as(keys))
         bounds = tile_bounds(means2d, radii, image_width, image_height, tile_size)
-        # depth from the fourth channel, so its gradient reaches the depths through `colors` as in gsplat
+        # depth from the fourth channel, so its gradient reaches the depths through `colors` as in gsplat; order by the keys
         color, alpha, dacc = rasterize_reference(means2d, conics, colors[..., :3], opacities, colors[..., 3], bounds,
-                                                 image_width, image_height, tile_size)  # fmt: skip
+                                                 image_width, image_height, tile_size, order=keys)  # fmt: skip
         return torch.cat([color, dacc], dim=-1), alpha
 
     wrapper = types.ModuleType("gsplat.cuda._wrapper")

@@ -143,14 +143,19 @@ def test_device_option_is_checked_and_not_part_of_the_checkpoint_identity(name: 
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_training_and_prediction_on_a_gpu_match_the_cpu(name: str, tmp_path: Path) -> None:
-    """Same seed and windows on the CPU and on CUDA: losses and predictions agree to float32 rounding."""
+def test_training_and_prediction_on_a_gpu_match_the_cpu(name: str, tmp_path: Path, monkeypatch) -> None:
+    """Same seed and windows on the CPU and on CUDA: losses agree to 1e-3 and 5-step predictions to 1e-3. TF32 is
+    switched off for the comparison: with PyTorch's default (cuDNN convolutions in TF32) SimVP, TAU and MMVP
+    predicted up to 3.3e-3 apart after 20 steps on an H200; with it off TAU, MAU and MMVP agreed within 1e-4 and
+    SimVP within 3.1e-4 (float32 summation order of cuDNN's convolutions, compounded over 5 autoregressive steps)."""
     if not torch.cuda.is_available():
         pytest.skip("needs a CUDA GPU")
+    monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+    monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
     video = [moving_square(frames=8)]
     cpu, gpu = make(name), make(name, device="cuda")
     s_cpu = cpu.fit(video, FitContext(tmp_path / "cpu", 0, False))
     s_gpu = gpu.fit(video, FitContext(tmp_path / "gpu", 0, False))
     assert s_gpu["final_loss"] == pytest.approx(s_cpu["final_loss"], rel=1e-3)
     context = np.random.default_rng(0).random((2, 4, 16, 16, 3)).astype(np.float32)
-    np.testing.assert_allclose(gpu.predict(context, 5), cpu.predict(context, 5), atol=1e-4)
+    np.testing.assert_allclose(gpu.predict(context, 5), cpu.predict(context, 5), atol=1e-3)
