@@ -12,8 +12,9 @@
 #   bash examples/gpu/paper_trajectory.sh                                   # on a GPU machine
 #   PRESET=ci BACKEND=cpu DEVICE=cpu bash examples/gpu/paper_trajectory.sh  # the same steps, small, on a CPU
 #
-# Prints each command's wall time, then the stage timings of the run record (stage 1 fit, stage 2 per frame,
-# stage 3 per training step) and the bytes on disk.
+# Prints each command's wall time, the files the run writes as it goes (stage boundaries, also in $OUT/stages.txt),
+# then the stage timings of the run record (stage 1 fit, stage 2 per frame, stage 3 per training step) and the
+# bytes on disk.
 set -euo pipefail
 PRESET=${PRESET:-paper}
 OUT=${OUT:-paper-trajectory}
@@ -28,6 +29,14 @@ if [ -n "${STEPS:-}" ]; then
 fi
 mkdir -p "$OUT"
 /usr/bin/time -f "data generate: %e s wall" clods-bench data generate "${common[@]}" --jobs "${JOBS:-2}" 2>&1 | tee -a "$OUT/log.txt"
+# Stage boundaries as they happen (the run prints its timings only at the end): every file the run writes, with the
+# seconds since the run began: the stage-1 fit (clods_cache/stage1-*.pt), stage 2's per-frame partial saves,
+# stage 3's checkpoints, result.json.
+mkdir -p "$OUT/runs" && touch "$OUT/.mark" && began=$SECONDS
+( while sleep 2; do find "$OUT/runs" -type f -newer "$OUT/.mark" -printf "%P %s\n" 2>/dev/null | grep -v '\.lock' |
+    sed "s/^/[$((SECONDS - began)) s] wrote /"; touch "$OUT/.mark"; done ) | tee -a "$OUT/stages.txt" &
+watcher=$!
+trap 'kill $watcher 2>/dev/null' EXIT
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
   --train-subset first_half "${common[@]}" --set seeds=[0] --set runs_dir="$OUT/runs" --label "CloDS* (one paper-size trajectory)" \
   --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$SIM_DEVICE" \
