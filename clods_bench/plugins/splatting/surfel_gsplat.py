@@ -28,6 +28,8 @@ import math
 import torch
 from torch import Tensor
 
+from clods_bench.plugins.splatting.gsplat_backend import order_keys
+
 
 def box_radii(means2d: Tensor, boxes: Tensor) -> Tensor:
     """(C,G,2) int32 radii about `means2d` whose tiles (gsplat: floor/ceil of (mean -/+ radius) / tile) cover the
@@ -57,8 +59,6 @@ def raster_surfels_gsplat(
     'depth_acc' sum w z, 'mapped_median' m of the median surfel, 'alpha', 'normal' (world), 'distortion'}, float32.
     Called by `surfels.render_surfels`, which has checked that gsplat and CUDA are there."""
     from gsplat.cuda._wrapper import isect_offset_encode, isect_tiles, rasterize_to_pixels_2dgs
-
-    from clods_bench.plugins.splatting.gsplat_backend import order_keys
 
     f32 = torch.float32
     C, G = depths.shape

@@ -368,7 +368,7 @@ def test_training_and_rollout_on_a_gpu_match_the_cpu(windless: Trajectory, tmp_p
     rollout agree to float32 rounding; a GPU-written checkpoint resumes on the CPU. 'mgn-rollout' trains with
     CloDS's 8-step rollout loss (eq. 8), the loss of stage 3."""
     if not torch.cuda.is_available():
-        pytest.skip("needs a CUDA GPU")
+        pytest.skip("the CPU/GPU agreement of a simulator needs a CUDA GPU (torch.cuda.is_available() is False); ran on an H200, README 'On a GPU'")
     cfg = dict(train_steps=20, checkpoint_every=10, batch_size=2)
     if name == "mgn-rollout":
         cfg.update(loss="rollout", rollout_length=8, rollout_start_step=0)

@@ -149,7 +149,7 @@ def test_training_and_prediction_on_a_gpu_match_the_cpu(name: str, tmp_path: Pat
     predicted up to 3.3e-3 apart after 20 steps on an H200; with it off TAU, MAU and MMVP agreed within 1e-4 and
     SimVP within 3.1e-4 (float32 summation order of cuDNN's convolutions, compounded over 5 autoregressive steps)."""
     if not torch.cuda.is_available():
-        pytest.skip("needs a CUDA GPU")
+        pytest.skip("the CPU/GPU agreement of a predictor needs a CUDA GPU (torch.cuda.is_available() is False); ran on an H200, README 'On a GPU'")
     monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
     monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
     video = [moving_square(frames=8)]
