@@ -140,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(physics solver step + ground-truth rasterizer) at --preset size")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
                    "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer: config override, e.g. data.root=DIR")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer: config override, e.g. data.root=DIR; sim: sim_config.<name>.<field>=VALUE")
     p.add_argument("--blocks", type=int, default=None,
                    help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
                         "and extrapolate the bytes (default: every frame)")  # fmt: skip
@@ -159,7 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit-iterations", type=int, default=None,
                    help="stage2: renderer fit iterations on frame 0 before timing (default 60); infer: the same (default 0: initial parameters)")  # fmt: skip
     p.add_argument("--sim", default="mgn", help="infer: CloDS's learned simulator (default mgn; untrained weights, the preset's size)")
-    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU")
+    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU; sim: "
+                   "also time each learned simulator on this device (cpu / device speed-up in one run)")
     p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
     p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
     p.set_defaults(func=cmd_bench)
@@ -446,9 +447,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print_bench_stage2(console, preset=args.preset, frames=frames, fit_iterations=fit_iterations,
                            backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
-        from clods_bench.benchmark.sim_bench import bench_sim
+        from clods_bench.benchmark.config import parse_override
+        from clods_bench.benchmark.infer_bench import check_device
+        from clods_bench.benchmark.sim_bench import bench_sim, sim_overrides
 
-        bench_sim(console, sims=args.sims, frames=frames)
+        check_device(args.device, where="bench sim --device")
+        sim_config = sim_overrides([parse_override(o) for o in args.overrides])
+        bench_sim(console, sims=args.sims, frames=frames, sim_config=sim_config, devices=("cpu", args.device))
     return 0
 
 

@@ -46,15 +46,15 @@ REFERENCE_SIM = "physics"
 """The traditional pipeline's simulator plugin."""
 
 
-def check_device(device: str) -> None:
+def check_device(device: str, where: str = "bench infer --device") -> None:
     """Raise ClodsError unless `device` is 'cpu', or 'cuda[:N]' with a CUDA GPU torch can see."""
     import torch
 
     name = str(device)
     if not (name in ("cpu", "cuda") or (name.startswith("cuda:") and name[5:].isdigit())):
-        raise ClodsError(f"unknown device '{name}'; known: cpu, cuda, cuda:N", where="bench infer --device")
+        raise ClodsError(f"unknown device '{name}'; known: cpu, cuda, cuda:N", where=where)
     if name != "cpu" and not torch.cuda.is_available():
-        raise ClodsError(f"device '{name}' asked for, but torch sees no CUDA GPU", where="bench infer --device",
+        raise ClodsError(f"device '{name}' asked for, but torch sees no CUDA GPU", where=where,
                          hint="run on a machine with a GPU and gsplat installed, or use --device cpu")  # fmt: skip
 
 

@@ -8,7 +8,9 @@ first-call allocation; an untimed fit of n1 steps runs first so one-time imports
 charged to the n1 fit); a warm-up option (`warmup_steps`: steps that only feed normaliser
 statistics) is set to 0 so the timed steps are optimiser steps. Inference is timed on a
 rollout after one warm-up rollout, per rollout step. The physics solver is the reference
-for the inference-time ratio.
+for the inference-time ratio. With more than one device (`--device cuda`), each learned simulator
+that has a `device` option is timed on the CPU and on each other device in the same run, and the
+table gives the speed-up of each device over the CPU.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.scenes import Resolution, get_scene, simulate_scene
 from clods_bench.datasets.types import Trajectory
+from clods_bench.errors import ClodsError
 
 STEP_OPTIONS = ("train_steps", "steps", "num_steps", "max_steps", "iterations", "num_iterations")
 """Config fields, in order of preference, taken to be a learned simulator's number of training steps."""
@@ -101,6 +104,27 @@ def _fmt(value: float) -> str:
     return f"{value:.3g}" if value == value else "n/a"
 
 
+def has_option(spec: PluginSpec, option: str) -> bool:
+    """Whether the plugin's config dataclass has the field `option`."""
+    return dataclasses.is_dataclass(spec.config_cls) and option in {f.name for f in dataclasses.fields(spec.config_cls)}
+
+
+def sim_overrides(items: Sequence[tuple[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per-simulator options from `--set sim_config.<name>.<field>=value` pairs; any other key is refused."""
+    out: dict[str, dict[str, Any]] = {}
+    for key, value in items:
+        parts = key.split(".")
+        if len(parts) != 3 or parts[0] != "sim_config":
+            raise ClodsError(f"'{key}' is not of the form sim_config.<simulator>.<field>", where="bench sim --set")
+        out.setdefault(parts[1], {})[parts[2]] = value
+    return out
+
+
+def row_name(name: str, device: str) -> str:
+    """Result key of a simulator timed on `device`: the name on the CPU, 'name@device' elsewhere."""
+    return name if device == "cpu" else f"{name}@{device}"
+
+
 def bench_sim(
     console: Console,
     sims: Sequence[str] = ("mgn", "bsms", "hcmt", "physics"),
@@ -111,11 +135,14 @@ def bench_sim(
     registry: Any = None,
     reference: str = "physics",
     clock: Callable[[], float] = time.perf_counter,
+    devices: Sequence[str] = ("cpu",),
 ) -> dict[str, SimTiming]:
     """Time each registered simulator in `sims` on the flag scene (default the 1579-node FLAGSIMPLE size); print a table.
 
     `frames` frames are rolled out (frames - 2 timed steps); learned simulators train on one
-    trajectory of that length. Returns the timings by name; names not registered are skipped.
+    trajectory of that length. `sim_config` holds options per simulator (e.g. {'mgn': {'loss': 'rollout'}}).
+    Each learned simulator with a `device` option is also timed on every device of `devices` other than
+    'cpu' (keys 'name@device'). Returns the timings by key; names not registered are skipped.
     """
     from clods_bench.benchmark.registry import default_registry
 
@@ -133,17 +160,28 @@ def bench_sim(
             if name in skipped:
                 continue
             spec = reg.get("simulator", name)
-            with console.status(f"timing {name} ..."):
-                results[name] = time_simulator(
-                    spec, scene, [traj], inp, Path(tmp) / name, (sim_config or {}).get(name), train_steps, clock
-                )
+            for device in ["cpu", *[d for d in devices if d != "cpu"]]:
+                if device != "cpu" and not (spec.learned and has_option(spec, "device")):
+                    continue  # solvers and simulators without a device option run on the CPU only
+                key = row_name(name, device)
+                base = {**dict((sim_config or {}).get(name, {})), **({"device": device} if device != "cpu" else {})}
+                with console.status(f"timing {key} ..."):
+                    results[key] = time_simulator(spec, scene, [traj], inp, Path(tmp) / key.replace(":", "_"), base,
+                                                  train_steps, clock)  # fmt: skip
     ref = results.get(reference)
     table = Table(title=f"clods-bench bench sim ({mesh.num_nodes}-node flag, {frames - 2} rollout steps, this machine)")
-    for col in ("simulator", "train s/step", "infer ms/step", f"infer / {reference}", "how"):
+    many = len(set(devices) | {"cpu"}) > 1
+    cols = ["simulator", "train s/step", "infer ms/step", f"infer / {reference}"] + (["train cpu / this", "infer cpu / this"] if many else [])
+    for col in cols + ["how"]:
         table.add_column(col, justify="left" if col in ("simulator", "how") else "right")
-    for name, r in results.items():
+    for key, r in results.items():
         ratio = r.infer_ms_per_step / ref.infer_ms_per_step if ref is not None and ref.infer_ms_per_step > 0 else float("nan")
-        table.add_row(name, _fmt(r.train_s_per_step), _fmt(r.infer_ms_per_step), _fmt(ratio), r.note)
+        speed = []
+        if many:
+            cpu = results.get(key.split("@")[0])
+            speed = [_fmt(cpu.train_s_per_step / r.train_s_per_step) if cpu and r.train_s_per_step > 0 else "n/a",
+                     _fmt(cpu.infer_ms_per_step / r.infer_ms_per_step) if cpu and r.infer_ms_per_step > 0 else "n/a"]  # fmt: skip
+        table.add_row(key, _fmt(r.train_s_per_step), _fmt(r.infer_ms_per_step), _fmt(ratio), *speed, r.note)
     for name in skipped:
         table.add_row(name, "-", "-", "-", "not registered: skipped")
     console.print(table)

@@ -33,13 +33,15 @@ mkdir -p "$OUT"
 # seconds since the run began: the stage-1 fit (clods_cache/stage1-*.pt), stage 2's per-frame partial saves,
 # stage 3's checkpoints, result.json.
 mkdir -p "$OUT/runs" && touch "$OUT/.mark" && began=$SECONDS
-( while sleep 2; do find "$OUT/runs" -type f -newer "$OUT/.mark" -printf "%P %s\n" 2>/dev/null | grep -v '\.lock' |
-    sed "s/^/[$((SECONDS - began)) s] wrote /"; touch "$OUT/.mark"; done ) | tee -a "$OUT/stages.txt" &
+# (`|| true`: under `set -e` a quiet poll, where grep matches nothing, would end the watcher)
+( while sleep 2; do { find "$OUT/runs" -type f -newer "$OUT/.mark" -printf "%P %s\n" 2>/dev/null | grep -v '\.lock' |
+    sed "s/^/[$((SECONDS - began)) s] wrote /"; } || true; touch "$OUT/.mark"; done ) | tee -a "$OUT/stages.txt" &
 watcher=$!
-trap 'kill $watcher 2>/dev/null' EXIT
+trap 'kill $watcher 2>/dev/null || true' EXIT
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
   --train-subset first_half "${common[@]}" --set seeds=[0] --set runs_dir="$OUT/runs" --label "CloDS* (one paper-size trajectory)" \
   --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$SIM_DEVICE" \
+  --set task_config.clods.sim_overrides.loss=rollout --set task_config.clods.sim_overrides.rollout_length=8 \
   --set task_config.clods.sim_overrides.train_steps="$STAGE3_STEPS" \
   --set task_config.clods.sim_overrides.warmup_steps=$((STAGE3_STEPS / 5)) --set task_config.clods.sim_overrides.rollout_start_step=0 \
   ${EXTRA:-} 2>&1 | tee -a "$OUT/log.txt"

@@ -116,3 +116,55 @@ def test_bench_sim_times_optimiser_steps_not_warm_up() -> None:
     reg = Registry.from_plugin_manager(make_plugin_manager(extra_plugins=[WarmupFakes()], load_entry_points=False))
     out = bench_sim(Console(quiet=True), sims=("warm",), frames=5, resolution=(5, 3), registry=reg, reference="warm", clock=CLOCK)
     assert out["warm"].train_s_per_step == pytest.approx(0.25) and "warmup_steps=0" in out["warm"].note
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    """A learned simulator with a step count and a device option."""
+
+    steps: int = 10
+    device: str = "cpu"
+
+
+class FakeDevice(FakeLearned):
+    """0.25 s per training step and 10 ms per rollout step on 'cpu', a quarter of both on any other device."""
+
+    def fit(self, train, ctx):
+        CLOCK.now += 5.0 + 0.25 * self.cfg.steps * (1.0 if self.cfg.device == "cpu" else 0.25)
+        return {}
+
+    def rollout(self, inp):
+        CLOCK.now += 0.010 * (inp.num_frames - 2) * (1.0 if self.cfg.device == "cpu" else 0.25)
+        return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
+
+
+class DeviceFakes:
+    @hookimpl
+    def clods_bench_simulators(self) -> list[PluginSpec]:
+        return [
+            PluginSpec("dev", "fake", lambda cfg, ctx: FakeDevice(cfg), DeviceConfig, learned=True),
+            PluginSpec("solver", "fake", lambda cfg, ctx: FakeSolver(StepsConfig())),
+        ]
+
+
+def test_bench_sim_times_learned_simulators_on_each_device_with_the_cpu_speed_up() -> None:
+    reg = Registry.from_plugin_manager(make_plugin_manager(extra_plugins=[DeviceFakes()], load_entry_points=False))
+    console = Console(record=True, width=250)
+    out = bench_sim(console, sims=("dev", "solver"), frames=6, resolution=(5, 3), registry=reg, reference="solver",
+                    clock=CLOCK, devices=("cpu", "gpu0"))  # fmt: skip
+    assert set(out) == {"dev", "dev@gpu0", "solver"}  # the solver has no device option: CPU only
+    assert out["dev"].train_s_per_step == pytest.approx(0.25) and out["dev@gpu0"].train_s_per_step == pytest.approx(0.0625)
+    assert out["dev@gpu0"].infer_ms_per_step == pytest.approx(2.5)
+    row = next(line for line in console.export_text().splitlines() if "dev@gpu0" in line)
+    cells = [c.strip() for c in row.split("│")[1:-1]]
+    assert cells[4:6] == ["4", "4"]  # train and infer speed-up over the CPU, both 4x
+
+
+def test_sim_overrides_group_options_by_simulator_and_refuse_other_keys() -> None:
+    from clods_bench.benchmark.sim_bench import sim_overrides
+    from clods_bench.errors import ClodsError
+
+    got = sim_overrides([("sim_config.mgn.loss", "rollout"), ("sim_config.mgn.rollout_length", 8), ("sim_config.bsms.device", "cuda")])
+    assert got == {"mgn": {"loss": "rollout", "rollout_length": 8}, "bsms": {"device": "cuda"}}
+    with pytest.raises(ClodsError, match="data.num_train"):
+        sim_overrides([("data.num_train", 3)])

@@ -17,6 +17,10 @@ InitialMesh = Literal["truth", "reconstructed"]
 WHERE = "task_config.clods"
 
 
+DEFAULT_SIM_OVERRIDES: dict[str, Any] = {"loss": "rollout", "rollout_length": 8}
+"""Stage 3's default options for learned simulators: the paper's 8-step rollout loss (eq. 8)."""
+
+
 @dataclass(frozen=True)
 class ClodsConfig:
     """Stage 2 (mesh extraction) settings, stage 3 overrides and the CDG row variant."""
@@ -68,8 +72,10 @@ class ClodsConfig:
     """Where stage 1-2 results are cached; None: `<runs_dir>/clods_cache`."""
     num_threads: int | None = None
     """torch CPU threads in stages 1-2; None leaves torch's setting."""
-    sim_overrides: dict[str, Any] = field(default_factory=lambda: {"loss": "rollout", "rollout_length": 8})
-    """Stage 3: options laid over `sim_config.<sim>` for learned simulators (paper eq. 8: the 8-step rollout loss)."""
+    sim_overrides: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_SIM_OVERRIDES))
+    """Stage 3: options laid over `sim_config.<sim>` for learned simulators. The keys given are laid over the default
+    (paper eq. 8: the 8-step rollout loss), so setting one key (e.g. `train_steps`) keeps that loss; `loss: one_step`
+    switches it off."""
 
     def validate(self) -> None:
         """Raise ClodsError naming the first field out of range."""
@@ -120,6 +126,9 @@ class ClodsConfig:
 
 def clods_config(cfg: RunConfig) -> ClodsConfig:
     """The run's `task_config.clods` as a checked ClodsConfig."""
-    opts: ClodsConfig = dataclass_from_dict(ClodsConfig, dict(cfg.task_config.get("clods", {})), where=WHERE, prefix="clods.")
+    raw = dict(cfg.task_config.get("clods", {}))
+    if isinstance(raw.get("sim_overrides"), dict):  # keys given are laid over the default, not instead of it
+        raw["sim_overrides"] = {**DEFAULT_SIM_OVERRIDES, **raw["sim_overrides"]}
+    opts: ClodsConfig = dataclass_from_dict(ClodsConfig, raw, where=WHERE, prefix="clods.")
     opts.validate()
     return opts

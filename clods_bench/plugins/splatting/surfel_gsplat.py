@@ -6,9 +6,9 @@ As for 3D Gaussians (`gsplat_backend`), the projection is ours (`surfels.project
 autograd for its backward), so both backends composite the same per-view transforms: gsplat's
 `ray_transforms` are exactly our M = K [R | t] H (rows Tu, Tv, Tw; checked against gsplat's own torch
 projection in the tests). Its kernels then bin (`isect_tiles` over radii that cover our pixel boxes) and
-composite (`rasterize_to_pixels_2dgs`) in float32. Channels passed as colours: RGB, the centre's camera
-z and its 2DGS-mapped depth m; m is the last channel, which gsplat's distortion and median read, and the
-median z is mapped back from m (m is monotone in z).
+composite (`rasterize_to_pixels_2dgs`) in float32. Channels passed as colours (`CHANNELS`): RGB, the
+centre's camera z, three zeros and its 2DGS-mapped depth m; m is the last channel, which gsplat's distortion
+and median read, and the median z is mapped back from m (m is monotone in z).
 
 Differences from the CPU backends (so agreement holds for opacities up to about 0.35 and, for depth,
 median and distortion, surfels facing the camera; `tests/plugins/splatting/test_surfel_gsplat.py`):
@@ -29,6 +29,13 @@ import torch
 from torch import Tensor
 
 from clods_bench.plugins.splatting.gsplat_backend import order_keys
+
+CHANNELS = 8
+"""Channels handed to gsplat: RGB, z, three zeros, m. gsplat 1.5.3 has 2DGS kernels for 1-4, 8, 16, ... channels and
+pads any other count before the last channel with `torch.empty` (uninitialised memory). The forward drops those
+channels, but its backward multiplies them by their zero incoming gradient inside the alpha gradient, so garbage
+that happens to be NaN or inf made the opacity, ray-transform and mean gradients NaN (stage 0 stopped at its first
+backward on an H200). Zeros of our own keep every value finite."""
 
 
 def box_radii(means2d: Tensor, boxes: Tensor) -> Tensor:
@@ -67,7 +74,8 @@ def raster_surfels_gsplat(
     radii = box_radii(means2d.detach(), boxes.to(means2d.device))
     _, isect_ids, flatten_ids = isect_tiles(m2.detach(), radii, order_keys(depths), tile, tiles_x, tiles_y)  # float64 order
     offsets = isect_offset_encode(isect_ids, C, tiles_x, tiles_y)
-    feats = torch.cat([colors.to(f32)[None].expand(C, G, 3), depths.to(f32)[..., None], mapped.to(f32)[..., None]], dim=-1)
+    zeros = torch.zeros(C, G, CHANNELS - 5, dtype=f32, device=m2.device)  # our own zero padding: see CHANNELS
+    feats = torch.cat([colors.to(f32)[None].expand(C, G, 3), depths.to(f32)[..., None], zeros, mapped.to(f32)[..., None]], dim=-1)
     densify = torch.zeros(C, G, 2, dtype=f32, device=m2.device)
     render, alpha, normal, distort, median = rasterize_to_pixels_2dgs(
         m2, M.to(f32).contiguous(), feats.contiguous(), opacities.to(f32)[None].expand(C, G).contiguous(),

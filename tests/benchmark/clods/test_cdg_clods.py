@@ -61,6 +61,19 @@ def test_labels_and_variants(tiny_root: Path):
         clods_config(tiny_config(tiny_root, "task_config.clods.num_cameras=0"))
 
 
+def test_stage3_overrides_given_are_laid_over_the_papers_rollout_loss():
+    """Setting one stage-3 option on a preset without sim_overrides (as the paper-trajectory script sets train_steps
+    on `paper`) keeps the 8-step rollout loss of eq. 8 instead of silently dropping it; `loss: one_step` still
+    switches it off."""
+    from clods_bench.benchmark.config import load_config
+
+    assert clods_config(load_config("paper", None, [])).sim_overrides == {"loss": "rollout", "rollout_length": 8}
+    one = clods_config(load_config("paper", None, ["task_config.clods.sim_overrides.train_steps=20"]))
+    assert one.sim_overrides == {"loss": "rollout", "rollout_length": 8, "train_steps": 20}
+    off = clods_config(load_config("paper", None, ["task_config.clods.sim_overrides.loss=one_step"]))
+    assert off.sim_overrides == {"loss": "one_step", "rollout_length": 8}
+
+
 @pytest.mark.slow
 def test_finetune_starts_from_the_mesh_pretrained_model(tiny_root: Path, tmp_path: Path):
     """CloDS: MGN* on the first half's meshes, then fine-tuned on the second half's extracted meshes."""

@@ -144,8 +144,14 @@ def _composite(pix, M, m2, feats, opac, normals):
     return torch.cat([w @ feats, 1.0 - t_after[:, -1:], w @ normals, distort, median], dim=1)
 
 
+GSPLAT_CHANNELS = (1, 2, 3, 4, 8, 16, 32, 64, 128, 256, 512)
+"""Channel counts gsplat's 2DGS rasterizer takes as they are; it pads any other count (`_wrapper.py`)."""
+
+
 def _fake_wrapper() -> types.ModuleType:
-    """gsplat.cuda._wrapper's isect_tiles / isect_offset_encode / rasterize_to_pixels_2dgs, in torch on the CPU."""
+    """gsplat.cuda._wrapper's isect_tiles / isect_offset_encode / rasterize_to_pixels_2dgs, in torch on the CPU. Like
+    gsplat 1.5.3, a channel count it has no kernel for is padded before the last channel with uninitialised memory
+    (`torch.empty`), here NaN: the forward drops those channels, but 0 x NaN poisons the alpha gradient."""
 
     def isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height):
         assert means2d.dtype == depths.dtype == torch.float32 and radii.dtype == torch.int32 and radii.shape == means2d.shape
@@ -159,6 +165,10 @@ def _fake_wrapper() -> types.ModuleType:
         assert distloss and densify.shape == means2d.shape
         assert all(x.dtype == torch.float32 for x in (means2d, ray_transforms, colors, opacities, normals))
         lists, C, tiles_x, _ = isect_offsets
+        given = colors.shape[-1]
+        if given not in GSPLAT_CHANNELS:  # gsplat 1.5.3 pads before the last channel with torch.empty: garbage, NaN here
+            pad = (1 << (given - 1).bit_length()) - given
+            colors = torch.cat([colors[..., :-1], torch.full((*colors.shape[:-1], pad), float("nan")), colors[..., -1:]], -1)
         ch = colors.shape[-1]
         out = torch.zeros(C * image_height * image_width, ch + 6, dtype=torch.float32)
         for (c, t), ids in lists.items():
@@ -171,7 +181,8 @@ def _fake_wrapper() -> types.ModuleType:
             vals = _composite(pix, ray_transforms[c, sel], means2d[c, sel], colors[c, sel], opacities[c, sel], normals[c, sel])
             out = out.index_copy(0, c * image_height * image_width + (rr * image_width + cc).flatten(), vals)
         out = out.reshape(C, image_height, image_width, ch + 6)
-        return out[..., :ch], out[..., ch : ch + 1], out[..., ch + 1 : ch + 4], out[..., ch + 4 : ch + 5], out[..., ch + 5 :]
+        render = out[..., :ch] if ch == given else torch.cat([out[..., : given - 1], out[..., ch - 1 : ch]], -1)
+        return render, out[..., ch : ch + 1], out[..., ch + 1 : ch + 4], out[..., ch + 4 : ch + 5], out[..., ch + 5 :]
 
     wrapper = types.ModuleType("gsplat.cuda._wrapper")
     wrapper.isect_tiles, wrapper.isect_offset_encode = isect_tiles, isect_offset_encode
