@@ -59,6 +59,14 @@ class MeshPrior:
         return MeshPrior(self.edges.to(device), self.rest_lengths.to(device), self.free.to(device))
 
 
+def frame_target(frame: np.ndarray, device: torch.device) -> Tensor:
+    """(N,H,W,3) uint8 views of one frame as float32 in [0, 1] on `device`: converted on the host for the CPU (the
+    numbers stage 2 always had), moved as uint8 and converted there for a GPU (a quarter of the bytes)."""
+    if device.type == "cpu":
+        return torch.from_numpy(np.asarray(frame, dtype=np.float32) / 255.0)
+    return torch.from_numpy(np.array(frame)).to(device).float() / 255.0
+
+
 def renderer_device(renderer: Any) -> torch.device:
     """Where `renderer` keeps its fitted tensors (its `device` attribute; the CPU for renderers without one)."""
     device = getattr(renderer, "device", None)
@@ -148,7 +156,7 @@ def extract_trajectory(
     job = bar.add_task(f"stage 2: trajectory {index}", total=video.shape[0] - 1, completed=ext.num_frames - 1, info="") if bar else None
     with torch_threads(cfg.num_threads):
         for t in range(ext.num_frames, video.shape[0]):
-            target = torch.from_numpy(np.array(video[t])).to(renderer_device(renderer)).float() / 255.0  # uint8 moves
+            target = frame_target(video[t], renderer_device(renderer))
             t0 = time.perf_counter()  # the frame's cost includes the predict step (start=simulator)
             start = torch.from_numpy(start_guess(ext.world_pos, cfg, free, predict))
             fit = fit_frame(renderer, cameras, target, start, prior, cfg)

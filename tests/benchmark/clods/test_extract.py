@@ -102,3 +102,18 @@ def test_trajectory_tracks_a_moving_cloth(scene):
     for t in (1, 2):
         assert rms(ext.world_pos[t], truth[t]) < 0.35 * rms(verts, truth[t]), t
     assert (ext.iterations[1:] == 25).all() and ext.iterations[0] == 0
+
+
+def test_frame_target_on_the_cpu_is_the_hosts_float32_division_and_the_device_is_the_renderers():
+    """Stage 2 runs where the renderer is: a renderer without a `device` is on the CPU, and there the target is the
+    numpy float32 division stage 2 always used (bit for bit, so CPU results do not move)."""
+    from types import SimpleNamespace
+
+    from clods_bench.benchmark.clods.extract import frame_target, renderer_device
+
+    frame = np.random.default_rng(0).integers(0, 256, size=(2, 5, 7, 3), dtype=np.uint8)
+    got = frame_target(frame, torch.device("cpu"))
+    assert got.dtype == torch.float32 and np.array_equal(got.numpy(), np.asarray(frame, dtype=np.float32) / 255.0)
+    assert renderer_device(SimpleNamespace()) == torch.device("cpu")
+    assert renderer_device(SimpleNamespace(device=torch.device("meta"))) == torch.device("meta")
+    assert renderer_device(SimpleNamespace(device="cuda")) == torch.device("cpu")  # not a torch.device: not trusted
