@@ -29,7 +29,7 @@ from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.fit_cache import fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.interfaces import FitContext
 from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.tasks.stability import _long_rollouts, _summary, horizon_frames, stability_config
+from clods_bench.benchmark.tasks.stability import horizon_frames, long_rollouts, rollout_summary, stability_config
 from clods_bench.datasets.store import DatasetStore
 
 
@@ -37,9 +37,9 @@ def score(ctx, sim, store, name: str) -> dict:
     """The stability task's summary of `sim`'s long rollouts on the unviewed trajectories."""
     splits, scfg = split_spec(ctx), stability_config(ctx)
     frames = horizon_frames(splits.num_steps, scfg.horizon_factor)
-    rows, _, _ = _long_rollouts(ctx, sim, ctx.registry.get("scene", ctx.config.data.scene), store, splits, list(splits.unviewed),
+    rows, _, _ = long_rollouts(ctx, sim, ctx.registry.get("scene", ctx.config.data.scene), store, splits, list(splits.unviewed),
                                 frames, scfg, name, progress=False)  # fmt: skip
-    out = _summary(list(rows.values()), frames)
+    out = rollout_summary(list(rows.values()), frames)
     out["first_failure"] = min((r["failure_frame"] for r in rows.values() if r["failure_frame"] is not None), default=None)
     return out
 

@@ -23,7 +23,7 @@ from clods_bench.benchmark.config import load_config
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.fit_cache import fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.tasks.stability import _monitor, horizon_frames, long_ground_truth, long_input, stability_config
+from clods_bench.benchmark.tasks.stability import horizon_frames, long_ground_truth, long_input, scene_monitor, stability_config
 from clods_bench.datasets.store import DatasetStore
 
 
@@ -52,7 +52,7 @@ def main(sim_name: str, preset: str) -> None:
         traj = stored.slice(0, splits.num_steps)
         gt = long_ground_truth(ctx, scene, stored, i, frames)
         pred = sim.rollout(long_input(traj, gt, frames))
-        mon = _monitor(scene, traj)
+        mon = scene_monitor(scene, traj)
         e = mon.edges
         strain = np.linalg.norm(pred[:, e[:, 0]] - pred[:, e[:, 1]], axis=2) / mon.rest_length[None] - 1.0
         strain_gt = np.linalg.norm(gt[:, e[:, 0]] - gt[:, e[:, 1]], axis=2) / mon.rest_length[None] - 1.0

@@ -189,7 +189,8 @@ def watch(
     }
 
 
-def _monitor(scene: Any, traj: Trajectory) -> MeshMonitor:
+def scene_monitor(scene: Any, traj: Trajectory) -> MeshMonitor:
+    """The cloth monitor (edges, rest lengths, masses) of a trajectory's mesh, with the scene's cloth density."""
     params = getattr(scene, "params", None)
     return cloth_monitor(scene, traj.cells, traj.mesh_pos, traj.node_type, float(getattr(params, "density", 1.0)), traj.dt)
 
@@ -230,15 +231,15 @@ def run_stability(ctx: TaskContext) -> TaskResult:
             job = bar.add_task(f"training curve ({name}, {len(snaps)} snapshots)", total=len(snaps))
             for step, path in snaps[:-1]:  # the last snapshot is the final model, scored below
                 sim.use_snapshot(path)
-                rows, _, _ = _long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=False)
-                curve_rows.append({"step": float(step), "train_loss": loss_of(step), **_summary(list(rows.values()), frames)})
+                rows, _, _ = long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=False)
+                curve_rows.append({"step": float(step), "train_loss": loss_of(step), **rollout_summary(list(rows.values()), frames)})
                 bar.advance(job)
         sim.use_snapshot(snaps[-1][1])
-    per_traj, infer_seconds, extended = _long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=cfg.progress)
+    per_traj, infer_seconds, extended = long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=cfg.progress)
     infer_steps = (frames - 2) * len(ids)
 
     results = list(per_traj.values())
-    metrics = _summary(results, frames)
+    metrics = rollout_summary(results, frames)
     if snaps:
         curve_rows.append({"step": float(snaps[-1][0]), "train_loss": loss_of(snaps[-1][0]), **metrics})  # type: ignore[misc]
     timings = {"fit_seconds": fit_seconds, "fit_wall_seconds": fit_wall, "infer_ms_per_step": 1000.0 * infer_seconds / max(infer_steps, 1), "infer_seconds": infer_seconds}
@@ -262,7 +263,7 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
 
 
-def _long_rollouts(
+def long_rollouts(
     ctx: TaskContext, sim: Simulator, scene: Any, store: DatasetStore, splits: Any, ids: list[int], frames: int, scfg: StabilityConfig,
     name: str, progress: bool,
 ) -> tuple[dict[str, dict[str, Any]], float, bool]:  # fmt: skip
@@ -282,7 +283,7 @@ def _long_rollouts(
             t1 = time.perf_counter()
             pred, exc_frame, message = safe_rollout(sim, inp, name, scfg.locate_exceptions)
             infer_seconds += time.perf_counter() - t1
-            monitor = _monitor(scene, traj)
+            monitor = scene_monitor(scene, traj)
             gt_energy = float(np.max(monitor.kinetic_energy(gt)))
             result = watch(pred, gt, monitor, scfg, gt_energy, exc_frame, message)
             result["gt_max_strain"] = float(np.max(monitor.max_strain(gt)[1:]))
@@ -293,7 +294,7 @@ def _long_rollouts(
     return per_traj, infer_seconds, extended
 
 
-def _summary(results: list[dict[str, Any]], frames: int) -> dict[str, float]:
+def rollout_summary(results: list[dict[str, Any]], frames: int) -> dict[str, float]:
     """The task's metrics over the watched rollouts: mean RMSE, largest strain and energy ratio, divergence."""
     failed = [r["failure_frame"] for r in results if r["failure_frame"] is not None]
     rmses = [r["rmse"] for r in results]
