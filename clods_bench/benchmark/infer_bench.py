@@ -63,7 +63,18 @@ def _part(ms: list[float]) -> dict[str, Any]:
     return {"median_ms": statistics.median(ms), "min_ms": min(ms), "max_ms": max(ms), "per_frame_ms": list(ms)}
 
 
-def _learned_simulator(cfg: "RunConfig", registry: "Registry", name: str, scene: Any, traj: Any, work: Path) -> Any:
+def learned_values(cfg: "RunConfig", spec: Any, name: str, device: str) -> dict[str, Any]:
+    """Config values of the timed learned simulator: the preset's, one optimiser step, no warm-up, and on `device`
+    when it is not the CPU and the simulator has a `device` option (CloDS's step then runs on the GPU too)."""
+    option = step_option(spec)
+    names = {f.name for f in dataclasses.fields(spec.config_cls)}
+    values = {**cfg.sim_config.get(name, {}), option: 1, **{w: 0 for w in WARMUP_OPTIONS if w in names}}
+    if device != "cpu" and "device" in names:
+        values["device"] = device
+    return values
+
+
+def _learned_simulator(cfg: "RunConfig", registry: "Registry", name: str, scene: Any, traj: Any, work: Path, device: str = "cpu") -> Any:
     """The learned simulator `name` at the preset's size, fitted for one optimiser step (no warm-up) on `traj`."""
     spec = registry.get("simulator", name)
     if not spec.learned:
@@ -73,8 +84,7 @@ def _learned_simulator(cfg: "RunConfig", registry: "Registry", name: str, scene:
     if option is None:
         raise ClodsError(f"simulator '{name}' has no training-step option, so it cannot be fitted for one step to time it",
                          where="bench infer --sim")  # fmt: skip
-    names = {f.name for f in dataclasses.fields(spec.config_cls)}
-    values = {**cfg.sim_config.get(name, {}), option: 1, **{w: 0 for w in WARMUP_OPTIONS if w in names}}
+    values = learned_values(cfg, spec, name, device)
     sim = spec.build(spec.make_config(values, where=f"sim_config.{name}"), BuildContext(scene=scene, seed=0, work_dir=work, progress=False))
     sim.fit([traj], FitContext(work_dir=work, seed=0, progress=False))
     return sim
@@ -101,7 +111,8 @@ def bench_infer(cfg: "RunConfig", registry: "Registry | None" = None, sim: str =
     """Time `frames` frames of both pipelines at the size of `cfg` (a loaded preset); return the result dict.
 
     views: render only the first this many of the preset's cameras (a cap, reported in `caps`; never scaled up).
-    device: 'cuda' renders with the gsplat backend on the GPU (the simulators stay on the CPU).
+    device: 'cuda' renders with the gsplat backend on the GPU and steps the learned simulator there when it has a
+    `device` option (the physics solver and the rasterizer stay on the CPU).
     on_frame(i, n) is called after each of the n frames (the first one untimed).
     """
     import torch
@@ -142,7 +153,7 @@ def bench_infer(cfg: "RunConfig", registry: "Registry | None" = None, sim: str =
         return out
 
     with tempfile.TemporaryDirectory(prefix="clods-bench-infer-") as tmp:
-        learned = _learned_simulator(cfg, registry, sim, scene, traj, Path(tmp) / "sim")
+        learned = _learned_simulator(cfg, registry, sim, scene, traj, Path(tmp) / "sim", device)
         pspec = registry.get("simulator", REFERENCE_SIM)
         physics = pspec.build(pspec.make_config(cfg.sim_config.get(REFERENCE_SIM, {}), where=f"sim_config.{REFERENCE_SIM}"),
                               BuildContext(scene=scene, seed=0, work_dir=Path(tmp), progress=False))  # fmt: skip
@@ -192,8 +203,9 @@ def _result(cfg: "RunConfig", sim: str, renderer: str, device: str, fit_iteratio
              "both renderers draw the true mesh of the same frame; simulators step from the true frames",
              f"medians of {frames} timed frames after 1 untimed frame"]  # fmt: skip
     if device != "cpu":
-        notes.append(f"{renderer} renders with backend gsplat on {device} (vertices moved there inside the timing); both simulators "
-                     "and the rasterizer run on the CPU (they have no GPU path)")  # fmt: skip
+        notes.append(f"{renderer} renders with backend gsplat on {device} (vertices moved there inside the timing); {sim} steps on "
+                     f"{device} (positions back on the host inside the timing); the physics solver and the rasterizer run on the "
+                     "CPU (they have no GPU path)")  # fmt: skip
     result: dict[str, Any] = {"preset": cfg.preset, "scene": d.scene, "sim": sim, "renderer": renderer, "reference_sim": REFERENCE_SIM,
                               "device": device, "frames": frames, "dt": float(traj.dt), "counts": counts, "caps": caps, "notes": notes,
                               "threads": threads,

@@ -192,3 +192,16 @@ def test_outputs_accumulate_presets_and_the_report_shows_them(tmp_path: Path) ->
     assert "capped: views: 2 of the preset&#x27;s 4" in page and "data:image/png;base64," in page
     with pytest.raises(ClodsError, match="no run records"):
         build_html_report(tmp_path / "report", tmp_path / "report2", bench_dir=tmp_path / "empty")  # a folder without records
+
+
+def test_on_a_gpu_the_learned_step_is_timed_there_too() -> None:
+    """`--device cuda` puts the learned simulator on that device (MGN has a device option), one step and no warm-up
+    as on the CPU; on the CPU its config keeps the preset's device."""
+    from clods_bench.benchmark.infer_bench import learned_values
+    from clods_bench.benchmark.registry import default_registry
+
+    cfg = load_config("ci", None, [])
+    spec = default_registry().get("simulator", "mgn")
+    gpu = learned_values(cfg, spec, "mgn", "cuda:1")
+    assert gpu["device"] == "cuda:1" and gpu["train_steps"] == 1 and gpu["warmup_steps"] == 0
+    assert "device" not in learned_values(cfg, spec, "mgn", "cpu") or learned_values(cfg, spec, "mgn", "cpu")["device"] == "cpu"
