@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs] [surfels] [sims]`.
+# The checks only a CUDA machine can do, in stages (default: all): `bash examples/gpu/gpu_check.sh [build] [test] [bench] [fit] [nvs] [surfels] [sims] [infer]`.
 #   build: compile gsplat's CUDA kernels (JIT, first use) and time it
 #   test:  the splatting and renderer tests, the gsplat-vs-cpu agreement tests among them (-rs lists skips)
 #   bench: `clods-bench bench render` with the gsplat column at the issue's size (8 views, 128 px, with the
@@ -9,13 +9,15 @@
 #   surfels: the 2DGS surfel backend: gsplat's 2DGS kernels against the cpu backend, stage 0 of a bent flag on both
 #          (examples/gpu/surfel_nan.py traces its NaN on gsplat), and `clods-bench run initial_mesh --preset ci` (seed 0) with the surfel fit on gsplat and on the CPU
 #   sims:  the learned simulators and video predictors on CUDA against the CPU, then MGN's `small` training speed on both
-#          (data.frames=on_demand: the stability task reads meshes only)
+#          (data.frames=on_demand: the stability task reads meshes only), and `bench sim --device cuda` (CPU vs GPU in one run)
+#   infer: `clods-bench bench infer --device cuda` at `ci` and `paper` (CloDS: MGN step + SMGS on gsplat, against the
+#          physics solver + rasterizer on the CPU; the inference-time figure's GPU numbers, issue 15)
 # Logs go to $OUT (default ./gpu-check). Needs: clods-bench installed, gsplat, torch with CUDA, nvcc.
 set -uo pipefail
 OUT=${OUT:-gpu-check}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-$(nproc)}
-stages=${*:-build test bench fit nvs surfels sims}
+stages=${*:-build test bench fit nvs surfels sims infer}
 log() { tee -a "$OUT/$1"; }
 for stage in $stages; do
   case $stage in
@@ -39,7 +41,7 @@ for stage in $stages; do
       done ;;
     surfels)
       python3 -m pytest -q -rs -m "slow or not slow" tests/plugins/splatting/test_surfel_gsplat.py tests/benchmark/clods/test_stage0.py 2>&1 | log surfels.txt
-      timeout 120 python3 examples/gpu/surfel_nan.py 2>&1 | log surfels.txt  # where the stage-0 fit's NaN comes from
+      timeout 120 python3 examples/gpu/surfel_nan.py 2>&1 | log surfels.txt  # stage 0 on gsplat: attached RMSE, non-finite gradients
       for backend in gsplat cpu; do
         /usr/bin/time -f "run initial_mesh backend=$backend: %e s" clods-bench run initial_mesh --preset ci --no-progress \
           --set seeds=[0] --set runs_dir="/tmp/gpu-check-runs-s0-$backend" --set task_config.initial_mesh.backend=$backend 2>&1 | log surfels.txt
@@ -50,7 +52,12 @@ for stage in $stages; do
         /usr/bin/time -f "run stability mgn small, 500 steps, device=$device: %e s" clods-bench run stability --sim mgn --preset small \
           --no-progress --set seeds=[0] --set runs_dir="/tmp/gpu-check-runs-sim-$device" --set data.frames=on_demand --set sim_config.mgn.train_steps=500 \
           --set sim_config.mgn.warmup_steps=100 --set sim_config.mgn.device=$device 2>&1 | grep -E "train_seconds|rmse|max_strain|wall|s$" | log sims.txt
-      done ;;
-    *) echo "unknown stage '$stage' (known: build test bench fit nvs surfels sims)" >&2; exit 2 ;;
+      done
+      clods-bench bench sim --sims mgn bsms physics --device cuda --frames 12 --set sim_config.mgn.loss=rollout \
+        --set sim_config.bsms.loss=rollout 2>&1 | log sims.txt ;;
+    infer)
+      clods-bench bench infer --device cuda --preset ci --frames 10 --out "$OUT/infer" 2>&1 | log infer.txt
+      clods-bench bench infer --device cuda --preset paper --frames 3 --out "$OUT/infer" 2>&1 | log infer.txt ;;
+    *) echo "unknown stage '$stage' (known: build test bench fit nvs surfels sims infer)" >&2; exit 2 ;;
   esac
 done
