@@ -33,7 +33,9 @@ class StepsConfig:
 
 
 class FakeLearned:
-    """fit costs 5 s of set-up plus 0.25 s per step; rollout 10 ms per step (on the fake clock)."""
+    """fit costs 5 s of set-up plus 0.25 s per step; rollout `step_seconds` (10 ms) per step (on the fake clock)."""
+
+    step_seconds = 0.010
 
     def __init__(self, cfg: StepsConfig) -> None:
         self.cfg = cfg
@@ -43,19 +45,17 @@ class FakeLearned:
         return {}
 
     def rollout(self, inp):
-        CLOCK.now += 0.010 * (inp.num_frames - 2)
+        CLOCK.now += self.step_seconds * (inp.num_frames - 2)
         return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
 
 
 class FakeSolver(FakeLearned):
     """40 ms per rollout step, nothing to train."""
 
+    step_seconds = 0.040
+
     def fit(self, train, ctx):
         return {}
-
-    def rollout(self, inp):
-        CLOCK.now += 0.040 * (inp.num_frames - 2)
-        return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
 
 
 class Fakes:
@@ -129,13 +129,14 @@ class DeviceConfig:
 class FakeDevice(FakeLearned):
     """0.25 s per training step and 10 ms per rollout step on 'cpu', a quarter of both on any other device."""
 
-    def fit(self, train, ctx):
-        CLOCK.now += 5.0 + 0.25 * self.cfg.steps * (1.0 if self.cfg.device == "cpu" else 0.25)
-        return {}
+    def __init__(self, cfg: DeviceConfig) -> None:
+        super().__init__(cfg)
+        self.speed = 1.0 if cfg.device == "cpu" else 0.25
+        self.step_seconds = FakeLearned.step_seconds * self.speed
 
-    def rollout(self, inp):
-        CLOCK.now += 0.010 * (inp.num_frames - 2) * (1.0 if self.cfg.device == "cpu" else 0.25)
-        return np.repeat(inp.init_pos[1:], inp.num_frames, axis=0)
+    def fit(self, train, ctx):
+        CLOCK.now += 5.0 + 0.25 * self.cfg.steps * self.speed
+        return {}
 
 
 class DeviceFakes:
