@@ -105,7 +105,8 @@ def project_fwd(means, covars, opac, cams, ts, lims, width, height, near, eps2d,
         o = opac[cam, g]
         if not o >= ALPHA_MIN:
             continue
-        k = math.sqrt(2.0 * math.log(o / ALPHA_MIN))
+        log_o = math.log(o / ALPHA_MIN)  # sigma where alpha falls to 1/255: the radius here, the row ranges' threshold
+        k = math.sqrt(2.0 * log_o)
         rx, ry = k * math.sqrt(max(a, 0.0)), k * math.sqrt(max(c, 0.0))
         rx = min(math.ceil(rx), MAX_RADIUS) if math.isfinite(rx) else (MAX_RADIUS if rx > 0 else 0.0)
         ry = min(math.ceil(ry), MAX_RADIUS) if math.isfinite(ry) else (MAX_RADIUS if ry > 0 else 0.0)
@@ -117,7 +118,17 @@ def project_fwd(means, covars, opac, cams, ts, lims, width, height, near, eps2d,
         bounds[cam, g, 1] = int(min(max(math.floor((v - ry) / tile), 0.0), tiles_y))
         bounds[cam, g, 2] = int(min(max(math.ceil((u + rx) / tile), 0.0), tiles_x))
         bounds[cam, g, 3] = int(min(max(math.ceil((v + ry) / tile), 0.0), tiles_y))
-        thresholds[cam, g] = math.log(255.0 * o)
+        thresholds[cam, g] = log_o
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _vt_row(p, q, T, S):
+    """One row of V T (S + S^T): the row (p T[0:3] + q T[3:6]) times S + S^T, summed over k in order 0, 1, 2."""
+    r0, r1, r2 = p * T[0] + q * T[3], p * T[1] + q * T[4], p * T[2] + q * T[5]
+    out0 = r0 * (S[0, 0] + S[0, 0]) + r1 * (S[1, 0] + S[0, 1]) + r2 * (S[2, 0] + S[0, 2])
+    out1 = r0 * (S[0, 1] + S[1, 0]) + r1 * (S[1, 1] + S[1, 1]) + r2 * (S[2, 1] + S[1, 2])
+    out2 = r0 * (S[0, 2] + S[2, 0]) + r1 * (S[1, 2] + S[2, 1]) + r2 * (S[2, 2] + S[2, 2])
+    return out0, out1, out2
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -127,7 +138,6 @@ def project_bwd(means, covars, cams, ts, lims, eps2d, radii, v_means2d, v_conics
     for g in prange(G):
         S = covars[g]
         m = means[g]
-        vT = np.empty(6)  # d loss / d T, row-major
         for cam in range(C):
             if radii[cam, g, 0] <= 0:
                 continue
@@ -152,19 +162,14 @@ def project_bwd(means, covars, cams, ts, lims, eps2d, radii, v_means2d, v_conics
                 for j in range(3):
                     v_covars[g, i, j] += (T[0 + i] * (V00 * T[0 + j] + V01 * T[3 + j])
                                           + T[3 + i] * (V01 * T[0 + j] + V11 * T[3 + j]))  # fmt: skip
-            # d loss / d T = V T (S + S^T)
-            for i in range(2):
-                for j in range(3):
-                    s = 0.0
-                    for k in range(3):
-                        vt = (V00 * T[0 + k] + V01 * T[3 + k]) if i == 0 else (V01 * T[0 + k] + V11 * T[3 + k])
-                        s += vt * (S[k, j] + S[j, k])
-                    vT[3 * i + j] = s
+            # d loss / d T = V T (S + S^T), row-major in scalars (a per-Gaussian array here cost an allocation each)
+            vT0, vT1, vT2 = _vt_row(V00, V01, T, S)
+            vT3, vT4, vT5 = _vt_row(V01, V11, T, S)
             # T = J R: d loss / d J = vT R^T; only J00, J02, J11, J12 depend on the centre
-            vJ00 = vT[0] * cr[4] + vT[1] * cr[5] + vT[2] * cr[6]
-            vJ02 = vT[0] * cr[10] + vT[1] * cr[11] + vT[2] * cr[12]
-            vJ11 = vT[3] * cr[7] + vT[4] * cr[8] + vT[5] * cr[9]
-            vJ12 = vT[3] * cr[10] + vT[4] * cr[11] + vT[5] * cr[12]
+            vJ00 = vT0 * cr[4] + vT1 * cr[5] + vT2 * cr[6]
+            vJ02 = vT0 * cr[10] + vT1 * cr[11] + vT2 * cr[12]
+            vJ11 = vT3 * cr[7] + vT4 * cr[8] + vT5 * cr[9]
+            vJ12 = vT3 * cr[10] + vT4 * cr[11] + vT5 * cr[12]
             z2, z3 = z * z, z * z * z
             vx, vy = 0.0, 0.0
             vz = v_depths[cam, g] - vJ00 * fx / z2 - vJ11 * fy / z2 + vJ02 * 2.0 * fx * tx / z3 + vJ12 * 2.0 * fy * ty / z3

@@ -105,7 +105,7 @@ def render_gaussians(
     background: Sequence[float] | Tensor = (1.0, 1.0, 1.0),
     backend: Backend = "cpu",
     near: float = 0.01,
-    tile: int = 16,
+    tile: int | None = None,
     depth_mode: DepthMode = "expected",
 ) -> RenderOutput:
     """Differentiably splat 3D Gaussians into every camera (3DGS rules, 0.3 px dilation, 1/255 skip).
@@ -118,14 +118,15 @@ def render_gaussians(
         background: (3,) or (C,3) colour behind the Gaussians; a tensor gets gradients.
         backend: 'cpu' (numba, fast), 'reference' (plain torch, slow oracle) or 'gsplat' (CUDA).
         near: Gaussians with camera z <= near are culled.
-        tile: tile size in pixels for binning (results do not depend on it).
+        tile: tile size in pixels for binning (results do not depend on it); None: the cpu backend's
+            `fast_cpu.auto_tile` for this rig, 16 for the others.
         depth_mode: 'expected' divides the accumulated depth by alpha (gsplat 'ED'; 0 where alpha is 0),
             'accumulated' returns sum_i w_i z_i (gsplat 'D').
 
     Returns:
         RenderOutput with rgb, alpha, depth (C,H,W,.) and radii (C,G) in the dtype of `means`.
     """
-    check_options(backend, near, tile, depth_mode)
+    check_options(backend, near, 16 if tile is None else tile, depth_mode)
     covars = resolve_covariances(means, covars, quats, scales)
     G = check_gaussians(means, covars, opacities, colors)
     check_device(means, backend)
@@ -136,6 +137,8 @@ def render_gaussians(
     bg = background_tensor(background, len(cameras), dtype)
     if backend == "gsplat":
         from clods_bench.plugins.splatting.gsplat_backend import render_gsplat
+
+        tile = 16 if tile is None else tile
 
         rgb, alpha, depth, radii = render_gsplat(
             means, covars, opacities, colors, Ks, Rs, ts, width, height, degree, bg, near, tile, depth_mode
@@ -151,6 +154,8 @@ def render_gaussians(
         color, alpha, dacc, radii = splat_fast(means, covars, opac_cg, rgb_cg, cams, near=near, tile=tile)
     else:
         from clods_bench.plugins.splatting.reference import rasterize_reference
+
+        tile = 16 if tile is None else tile
 
         proj = project_gaussians(means, covars, opacities, Ks, Rs, ts, width, height, near=near, eps2d=EPS2D)
         bounds = tile_bounds(proj.means2d, proj.radii, width, height, tile)  # (C,G,4)

@@ -68,6 +68,108 @@ def test_tile_size_does_not_change_the_image(backend: str) -> None:
         torch.testing.assert_close(a[k], b[k], atol=1e-12, rtol=0)
     for k in ga:
         torch.testing.assert_close(ga[k], gb[k], atol=1e-9, rtol=1e-9)
+    if backend == "cpu":  # the auto tile (64 px here: one tile per view) and the largest size it picks
+        c, gc = _render_with_grads(scene, cameras, backend)
+        d, gd = _render_with_grads(scene, cameras, backend, tile=64)
+        for k in ("rgb", "alpha", "depth"):
+            torch.testing.assert_close(c[k], a[k], atol=1e-12, rtol=0)
+            torch.testing.assert_close(d[k], a[k], atol=1e-12, rtol=0)
+        for k in ga:
+            torch.testing.assert_close(gc[k], ga[k], atol=1e-9, rtol=1e-9)
+            torch.testing.assert_close(gd[k], ga[k], atol=1e-9, rtol=1e-9)
+
+
+def test_auto_tile_leaves_every_thread_enough_tiles() -> None:
+    from clods_bench.plugins.splatting.fast_cpu import auto_tile
+
+    assert auto_tile(8, 128, 128, threads=2) == 64  # bench render: 32 tiles of 64 px
+    assert auto_tile(4, 64, 64, threads=2) == 32  # ci: 16 tiles of 32 px (64 px would leave 4)
+    assert auto_tile(2, 37, 29, threads=2) == 16  # fewer than 16 tiles at any size: the smallest
+    assert auto_tile(30, 800, 800, threads=16) == 64
+    assert auto_tile(8, 128, 128, threads=16) == 32  # 128 tiles of 32 px for 16 threads
+
+
+def test_forward_without_gradients_renders_the_same_image() -> None:
+    """Under no_grad the forward keeps no exponentials for a backward; the image must not change."""
+    scene = random_scene(150, seed=9)
+    cameras = camera_rig(3, np.zeros(3), 2.5, 40, 32)
+    a, _ = _render_with_grads(scene, cameras, "cpu")
+    with torch.no_grad():
+        out = render_gaussians(scene["means"], scene["covars"], scene["opacities"], scene["colors"], cameras,
+                               backend="cpu", background=torch.tensor([0.2, 0.5, 0.7], dtype=torch.float64))  # fmt: skip
+    for k in ("rgb", "alpha", "depth"):
+        assert torch.equal(getattr(out, k), a[k]), k
+
+
+def test_kept_exponentials_fit_the_visit_bound_and_match_math_exp() -> None:
+    """Every visit the forward keeps lies inside its tile's share of the buffer (numba does not check bounds), and
+    the kept values are exp(-sigma) of those pixels to a few ulp (brute force over each Gaussian's pixel box)."""
+    import math
+
+    from clods_bench.plugins.splatting import fast_kernels as K
+
+    kept = {}
+    orig = K.raster_fwd
+
+    def spy(*args):
+        orig(*args)
+        kept["args"] = args
+
+    scene = random_scene(200, seed=11)
+    cameras = camera_rig(2, np.zeros(3), 2.5, 48, 40)
+    K.raster_fwd = spy
+    try:
+        _render_with_grads(scene, cameras, "cpu", tile=16)
+    finally:
+        K.raster_fwd = orig
+    means2d, conics, _, opac, _, radii, _, offsets, ids, W, H, tile, tiles_x, tiles_y = kept["args"][:14]
+    vis_buf, vis_start, tile_buf = kept["args"][-3:]
+    n_open = kept["args"][-4]
+    per_cam = tiles_x * tiles_y
+    n_checked = 0
+    for t in range(len(offsets) - 1):
+        cam, x0, y0, x1, y1 = K.tile_rect(t, per_cam, tiles_x, tile, W, H)
+        ends = []
+        for k in range(offsets[t], offsets[t + 1]):
+            if k - offsets[t] >= int(n_open[cam, y0:y1, x0:x1].max()):
+                break  # every pixel of the tile saturated before this Gaussian
+            g = ids[k]
+            (mx, my), (a, b, c) = means2d[cam, g], conics[cam, g]
+            i0, i1 = K._pixel_box(mx, radii[cam, g, 0], x0, x1)
+            j0, j1 = K._pixel_box(my, radii[cam, g, 1], y0, y1)
+            ell = K._ellipse(a, b, c, kept["args"][6][cam, g])
+            cur = vis_start[k]
+            for j in range(j0, j1 + 1):
+                r0, r1 = K._row_range(mx, my, ell, j, i0, i1)
+                for i in range(r0, r1 + 1):
+                    if k - offsets[t] >= n_open[cam, j, i]:
+                        continue
+                    dx, dy = i + 0.5 - mx, j + 0.5 - my
+                    expect = math.exp(-(0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy))
+                    assert abs(vis_buf[cur] - expect) <= 4 * np.spacing(expect), (t, k, i, j)
+                    cur += 1
+                    n_checked += 1
+            ends.append(cur)
+        if ends:
+            assert tile_buf[t] <= min(vis_start[offsets[t]], *ends) and max(ends) <= tile_buf[t + 1], t
+    assert n_checked > 1000
+
+
+def test_exp_neg_is_within_a_few_ulp_of_numpy() -> None:
+    from numba import njit
+
+    from clods_bench.plugins.splatting.fast_kernels import exp_neg
+
+    @njit
+    def many(x):
+        out = np.empty_like(x)
+        for i in range(x.size):
+            out[i] = exp_neg(x[i])
+        return out
+
+    x = np.concatenate([np.random.default_rng(0).uniform(0.0, 8.0, 200_000), np.linspace(0.0, 60.0, 6001), [0.0, 1e-300]])
+    expect = np.exp(-x)
+    assert np.all(np.abs(many(x) - expect) <= 4 * np.spacing(expect))
 
 
 def _gsplat_scene(kind: str) -> tuple[dict, list]:
