@@ -166,8 +166,57 @@ class SmgsRenderer(GamesRenderer):
             parts.append(sample_grid(self.params["mesh_grid"].to(means.dtype), self.mesh_means.to(means.dtype)))
         return torch.cat(parts, dim=1) if parts else torch.zeros(means.shape[0], 1, dtype=means.dtype, device=means.device)
 
+    def _move_to(self, device: torch.device) -> None:
+        """GaMeS's move, dropping the frozen-MLP cache (rebuilt on the new device on first use)."""
+        vars(self).pop("_frozen", None)
+        super()._move_to(device)
+
+    def __getstate__(self) -> dict:
+        """Pickle (the stage-1 cache) without the frozen-MLP cache: it is rebuilt on first use."""
+        state = dict(vars(self))
+        state.pop("_frozen", None)
+        return state
+
+    def _frozen_first_layer(self, dtype: torch.dtype, device: torch.device) -> Tensor | None:
+        """Layer 0's pre-activation from the fixed inputs alone (mesh encoding, grid features, bias) as (G, hidden), once
+        the fit has frozen the MLP (stage 2, predictions, evaluation); None while it trains or with no mesh inputs.
+
+        The mesh-space position of a Gaussian never moves, so with frozen weights this part of layer 0 is the same in
+        every render: computing it once leaves only the world position's columns (3 at world_freqs 0) per render, and
+        skips the encoding, the grid sampling and their backward. Cached by the identity and version of the weights.
+        """
+        cfg = self.config
+        if cfg.inputs not in ("both", "mesh"):
+            return None
+        fixed = [self.params[k] for k in ("mlp_w0", "mlp_b0", "mesh_grid") if k in self.params]
+        if any(p.requires_grad for p in fixed):
+            return None
+        key = (dtype, device, tuple((id(p), p._version) for p in fixed))
+        cache = getattr(self, "_frozen", None)
+        if cache is None or cache[0] != key:
+            parts = [positional_encoding(self.mesh_means.to(device, dtype), cfg.mesh_freqs)]
+            if cfg.uses_grid:
+                parts.append(sample_grid(self.params["mesh_grid"].to(device, dtype), self.mesh_means.to(device, dtype)))
+            w0 = self.params["mlp_w0"].to(dtype)
+            mesh_cols = w0[:, w0.shape[1] - sum(x.shape[1] for x in parts):]
+            cache = (key, torch.nn.functional.linear(torch.cat(parts, dim=1), mesh_cols, self.params["mlp_b0"].to(dtype)))
+            self._frozen = cache
+        return cache[1]
+
     def opacities(self, means: Tensor, verts: Tensor) -> Tensor:
         """(G,) opacities sigmoid(MLP(features)); they change with the world positions unless inputs is 'mesh'/'none'."""
+        fixed = self._frozen_first_layer(means.dtype, means.device)
+        if fixed is not None:  # frozen: layer 0 = world columns x world encoding + the cached fixed part
+            cfg = self.config
+            if cfg.inputs == "both":
+                centre, half = self.world_box
+                world = positional_encoding((means - centre.to(means.dtype)) / half.to(means.dtype), cfg.world_freqs)
+                h = torch.nn.functional.linear(world, self.params["mlp_w0"][:, : world.shape[1]].to(means.dtype)) + fixed
+            else:
+                h = fixed
+            for i in range(1, self.num_layers):
+                h = torch.nn.functional.linear(torch.relu(h), self.params[f"mlp_w{i}"].to(h.dtype), self.params[f"mlp_b{i}"].to(h.dtype))
+            return torch.sigmoid(h[:, 0])
         h = self.features(means)
         for i in range(self.num_layers):
             h = torch.nn.functional.linear(h, self.params[f"mlp_w{i}"].to(h.dtype), self.params[f"mlp_b{i}"].to(h.dtype))

@@ -2,7 +2,7 @@
 
 Forward: EWA projection (`projection_kernels.project_fwd`, the numba twin of `projection.project_gaussians`),
 depth sort and tile binning (`fast_kernels.sort_and_bin`), front-to-back compositing (`raster_fwd`).
-Backward: back-to-front compositing gradients (`raster_bwd`, from the exponentials the forward kept),
+Backward: back-to-front compositing gradients (`raster_bwd`, over the visits the forward kept, `_keep_visits`),
 summed per Gaussian (`reduce_grads`), then
 the projection's chain rule (`project_bwd`) to the world-space means and covariances. Same inputs,
 outputs and compositing rules as projection + `reference.rasterize_reference`. Everything between the
@@ -26,6 +26,9 @@ from torch.autograd.function import once_differentiable
 from clods_bench.plugins.splatting import fast_kernels as K
 from clods_bench.plugins.splatting import projection_kernels as PK
 from clods_bench.plugins.splatting.projection import EPS2D, FOV_CLAMP
+
+KEEP_BYTES = 1 << 30  # at most this much memory for the visits the forward keeps for the backward (else recompute)
+VISIT_BYTES = 8 + 2 * 2  # per kept visit: exp(-sigma) (float64) and the pixel in its tile (2 x int16)
 
 
 def _np(x: Tensor) -> np.ndarray:
@@ -75,15 +78,11 @@ class _SplatFast(torch.autograd.Function):
         rgb = np.empty((C, H, W, 3), dtype=out_dtype)
         alpha, depth = np.empty((C, H, W), dtype=out_dtype), np.empty((C, H, W), dtype=out_dtype)
         t_final = np.empty((C, H, W))
-        n_last, n_open = np.empty((C, H, W), dtype=np.int32), np.empty((C, H, W), dtype=np.int32)
-        if any(ctx.needs_input_grad[:4]):  # keep each visit's exponential for the backward, which reads them
-            tile_buf = K.visit_bounds(means2d, radii, offsets, ids, W, H, tile, tiles_x, tiles_y)  # (a bound: pages
-            vis_buf, vis_start = np.empty(tile_buf[-1]), np.empty(ids.shape[0], dtype=np.int64)  # past it stay untouched)
-        else:  # no backward will run
-            tile_buf, vis_buf, vis_start = np.zeros(offsets.shape[0], dtype=np.int64), np.empty(0), np.empty(0, dtype=np.int64)
+        n_last = np.empty((C, H, W), dtype=np.int32)
+        keep = _keep_visits(ctx, means2d, radii, offsets, ids, W, H, tile, tiles_x, tiles_y)
         with numba.parallel_chunksize(1):  # tiles differ a lot in cost: hand them out one by one
-            K.raster_fwd(*args, rgb, alpha, depth, t_final, n_last, n_open, vis_buf, vis_start, tile_buf)
-        ctx.args, ctx.state, ctx.proj = args, (t_final, n_last, n_open, vis_buf, vis_start), (m, S, cams)
+            K.raster_fwd(*args, rgb, alpha, depth, t_final, n_last, *keep)
+        ctx.args, ctx.state, ctx.proj = args, (t_final, n_last, *keep[:3]), (m, S, cams)
         ctx.dtype = means.dtype
         r = torch.from_numpy(radii)
         ctx.mark_non_differentiable(r)
@@ -108,6 +107,20 @@ class _SplatFast(torch.autograd.Function):
         g = torch.from_numpy(grads[..., 5:9]).to(to)  # colour and opacity only (the rest went to project_bwd); they
         g_opac, g_col = g[..., 3], g[..., 0:3]  # stay views of it, and torch sums them over cameras next
         return torch.from_numpy(v_means).to(to), torch.from_numpy(v_covars).to(to), g_opac, g_col, None, None, None
+
+
+def _keep_visits(ctx, means2d: np.ndarray, radii: np.ndarray, offsets: np.ndarray, ids: np.ndarray, W: int, H: int, tile: int,
+                 tiles_x: int, tiles_y: int) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """(vis_buf, vis_ij, vis_span, tile_buf) for `raster_fwd`: room for every visit when a backward will run and the
+    visits' bound fits `KEEP_BYTES` (`bench render`: 2.2 million visits, 26 MB); else empty arrays, and the backward
+    recomputes (a paper-size render, 30 views of 800 px, makes about 0.3 billion visits). Pages past the visits the
+    forward makes (the bound counts whole pixel boxes) are never touched."""
+    if any(ctx.needs_input_grad[:4]) and tile <= np.iinfo(np.int16).max:
+        tile_buf = K.visit_bounds(means2d, radii, offsets, ids, W, H, tile, tiles_x, tiles_y)
+        if tile_buf[-1] * VISIT_BYTES <= KEEP_BYTES:
+            n = int(tile_buf[-1])
+            return np.empty(n), np.empty((n, 2), dtype=np.int16), np.empty((ids.shape[0], 2), dtype=np.int64), tile_buf
+    return np.empty(0), np.empty((0, 2), dtype=np.int16), np.empty((0, 2), dtype=np.int64), np.zeros(offsets.shape[0], dtype=np.int64)
 
 
 def _pixels(x: Tensor) -> np.ndarray:

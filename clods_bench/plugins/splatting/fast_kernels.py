@@ -5,11 +5,12 @@ bounding box touches (`bin_gaussians`), so each tile's list is already depth sor
 backward run one tile per parallel iteration; inside a tile each Gaussian only visits the pixels of
 its own bounding box (it is invisible elsewhere by construction of the opacity-aware radii), with
 per-pixel state for the front-to-back order. The compositing rules are exactly those of
-`reference.py` (3DGS / gsplat). The forward keeps each visit's exponential (`visit_bounds` sizes the
-buffer); the backward pass walks each tile back to front from the stored final transmittance and
-last-contributor count (3DGS algorithm), reads those exponentials instead of recomputing them, and writes each Gaussian's per-tile
-gradient into its own row of a per-intersection buffer, which `reduce_grads` sums per Gaussian:
-no two threads ever write the same memory, and results do not depend on the thread count.
+`reference.py` (3DGS / gsplat). The forward keeps each visit's pixel and exponential (`visit_bounds`
+sizes the buffer); the backward pass walks each tile back to front from the stored final transmittance
+and last-contributor count (3DGS algorithm), over those visits instead of the row ranges, and writes
+each Gaussian's per-tile gradient into its own row of a per-intersection buffer, which `reduce_grads`
+sums per Gaussian: no two threads ever write the same memory, and results do not depend on the thread
+count.
 """
 
 from __future__ import annotations
@@ -187,13 +188,14 @@ def tile_rect(t, per_cam, tiles_x, tile, width, height):
 
 @njit(cache=True, nogil=True, parallel=True)
 def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, ids, width, height, tile, tiles_x, tiles_y,
-               out_rgb, out_alpha, out_depth, t_final, n_last, n_open, vis_buf, vis_start, tile_buf):  # fmt: skip
+               out_rgb, out_alpha, out_depth, t_final, n_last, vis_buf, vis_ij, vis_span, tile_buf):  # fmt: skip
     """Front-to-back compositing of every tile; fills the outputs and the state the backward needs.
 
-    With a non-empty `vis_buf` it also keeps, for the backward, exp(-sigma) of every visit to a pixel not yet
-    saturated, in visit order from `tile_buf[t]` on (`vis_start[k]`: where intersection k's visits begin;
-    `n_open[pixel]`: how many of its tile's Gaussians visit it before it saturates), so the backward reads the
-    exponentials instead of recomputing them (the same numbers, so the same gradients).
+    With a non-empty `vis_buf` it also keeps, for the backward, every visit to a pixel not yet saturated: its
+    exp(-sigma) in `vis_buf` and its pixel in the tile (column, row) in `vis_ij`, in visit order from `tile_buf[t]`
+    on, intersection k's visits being `vis_span[k, 0]` to `vis_span[k, 1]`. The backward then walks those visits
+    instead of the row ranges and reads the exponentials instead of recomputing them (the same numbers, so the
+    same gradients).
     """
     per_cam = tiles_x * tiles_y
     keep = vis_buf.shape[0] > 0
@@ -205,7 +207,6 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
         acc = np.zeros((npx, 4))
         last = np.zeros(npx, dtype=np.int32)
         done = np.zeros(npx, dtype=np.bool_)
-        opened = np.full(npx, np.int32(offsets[t + 1] - offsets[t]))
         n_done = 0
         start = offsets[t]
         cur = tile_buf[t]
@@ -213,7 +214,7 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
             if n_done == npx:
                 break
             if keep:
-                vis_start[k] = cur
+                vis_span[k, 0] = cur
             g = ids[k]
             mx, my = means2d[cam, g, 0], means2d[cam, g, 1]
             a, b, c, o = conics[cam, g, 0], conics[cam, g, 1], conics[cam, g, 2], opac[cam, g]
@@ -230,13 +231,14 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
                     alpha, vis, _, _, _ = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
                     if keep:
                         vis_buf[cur] = vis
+                        vis_ij[cur, 0] = i - x0
+                        vis_ij[cur, 1] = j - y0
                         cur += 1
                     if alpha == 0.0:
                         continue
                     nt = T[p] * (1.0 - alpha)
                     if nt < T_MIN:
                         done[p] = True
-                        opened[p] = k - start + 1
                         n_done += 1
                         continue
                     w = alpha * T[p]
@@ -246,6 +248,8 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
                     acc[p, 3] += w * z
                     T[p] = nt
                     last[p] = k - start + 1
+            if keep:
+                vis_span[k, 1] = cur
         for p in range(npx):
             j, i = y0 + p // tw, x0 + p % tw
             out_rgb[cam, j, i, 0] = acc[p, 0]
@@ -255,18 +259,43 @@ def raster_fwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
             out_depth[cam, j, i] = acc[p, 3]
             t_final[cam, j, i] = T[p]
             n_last[cam, j, i] = last[p]
-            n_open[cam, j, i] = opened[p]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _visit_grad(p, alpha, vis, dx, dy, unclamped, T, T_end, vc, suffix, cr, cg, cb, z, a, b, c, o):
+    """One visit of the backward: steps pixel p's transmittance and colour suffix back over this Gaussian and
+    returns the visit's share of its gradient row (mean2d, conic, colour, opacity, depth)."""
+    inv = 1.0 / (1.0 - alpha)
+    Ti = T[p] * inv  # transmittance in front of this Gaussian
+    T[p] = Ti
+    w = alpha * Ti
+    v0, v1, v2, v3, v4 = vc[p, 0], vc[p, 1], vc[p, 2], vc[p, 3], vc[p, 4]
+    s0, s1, s2, s3 = suffix[p, 0], suffix[p, 1], suffix[p, 2], suffix[p, 3]
+    v_a = (v0 * (cr * Ti - s0 * inv) + v1 * (cg * Ti - s1 * inv)
+           + v2 * (cb * Ti - s2 * inv) + v4 * (z * Ti - s3 * inv)
+           + v3 * T_end[p] * inv)  # fmt: skip
+    suffix[p, 0] = s0 + cr * w
+    suffix[p, 1] = s1 + cg * w
+    suffix[p, 2] = s2 + cb * w
+    suffix[p, 3] = s3 + z * w
+    if not unclamped:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, w * v0, w * v1, w * v2, 0.0, w * v4
+    v_s = -o * vis * v_a  # d loss / d sigma
+    return (-(v_s * (a * dx + b * dy)), -(v_s * (b * dx + c * dy)), v_s * 0.5 * dx * dx, v_s * dx * dy,
+            v_s * 0.5 * dy * dy, w * v0, w * v1, w * v2, vis * v_a, w * v4)  # fmt: skip
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, ids, width, height, tile, tiles_x, tiles_y,
-               t_final, n_last, n_open, vis_buf, vis_start, v_rgb, v_alpha, v_depth, g_isect):  # fmt: skip
+               t_final, n_last, vis_buf, vis_ij, vis_span, v_rgb, v_alpha, v_depth, g_isect):  # fmt: skip
     """Back-to-front gradient pass; row k of g_isect (n_isect, N_GRAD) gets intersection k's gradient.
 
-    Each visit reads its exp(-sigma) from the forward's `vis_buf` (which must have been kept) instead of
-    recomputing it: about a quarter of this pass's time on the `bench render` scene.
+    With the forward's kept visits (`vis_buf` non-empty) each Gaussian walks its own visits and reads their
+    exponentials (on the `bench render` scene about a third of this pass's time saved); without them (the forward
+    kept nothing: too many visits for the memory budget) it walks its row ranges and recomputes them.
     """
     per_cam = tiles_x * tiles_y
+    kept = vis_buf.shape[0] > 0
     for t in prange(offsets.shape[0] - 1):
         cam, x0, y0, x1, y1 = tile_rect(t, per_cam, tiles_x, tile, width, height)
         tw = x1 - x0
@@ -274,7 +303,6 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
         T = np.empty(npx)
         T_end = np.empty(npx)
         last = np.empty(npx, dtype=np.int32)
-        opened = np.empty(npx, dtype=np.int32)
         vc = np.empty((npx, 5))  # d loss / d (r, g, b, alpha, depth) of each pixel
         suffix = np.zeros((npx, 4))  # sum over later Gaussians of (colour, depth) * w
         kmax = 0
@@ -283,7 +311,6 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
             T[p] = t_final[cam, j, i]
             T_end[p] = T[p]
             last[p] = n_last[cam, j, i]
-            opened[p] = n_open[cam, j, i]
             kmax = max(kmax, last[p])
             for ch in range(3):
                 vc[p, ch] = v_rgb[cam, j, i, ch]
@@ -296,53 +323,39 @@ def raster_bwd(means2d, conics, colors, opac, depths, radii, thresh, offsets, id
             mx, my = means2d[cam, g, 0], means2d[cam, g, 1]
             a, b, c, o = conics[cam, g, 0], conics[cam, g, 1], conics[cam, g, 2], opac[cam, g]
             cr, cg, cb, z = colors[cam, g, 0], colors[cam, g, 1], colors[cam, g, 2], depths[cam, g]
-            i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
-            j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
             # the gradient row in scalars (registers), not an array: the same sums in the same order
             g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = g8 = g9 = 0.0
-            ell = _ellipse(a, b, c, thresh[cam, g])
-            cur = vis_start[k]
-            for j in range(j0, j1 + 1):
-                r0, r1 = _row_range(mx, my, ell, j, i0, i1)
-                for i in range(r0, r1 + 1):
-                    p = (j - y0) * tw + (i - x0)
-                    if kk >= opened[p]:
-                        continue  # saturated before this Gaussian: the forward kept nothing
-                    vis = vis_buf[cur]  # the forward's exp(-sigma) here (`_alpha`'s rules, without the exponential)
-                    cur += 1
+            if kept:
+                for e in range(vis_span[k, 0], vis_span[k, 1]):
+                    li, lj = vis_ij[e, 0], vis_ij[e, 1]
+                    p = lj * tw + li
                     if kk >= last[p]:
                         continue
-                    dx, dy = i + 0.5 - mx, j + 0.5 - my
+                    vis = vis_buf[e]  # the forward's exp(-sigma) here (`_alpha`'s rules, without the exponential)
                     raw = o * vis
                     alpha = min(ALPHA_MAX, raw)
                     if alpha < ALPHA_MIN:
                         continue
-                    unclamped = raw <= ALPHA_MAX
-                    inv = 1.0 / (1.0 - alpha)
-                    Ti = T[p] * inv  # transmittance in front of this Gaussian
-                    T[p] = Ti
-                    w = alpha * Ti
-                    v0, v1, v2, v3, v4 = vc[p, 0], vc[p, 1], vc[p, 2], vc[p, 3], vc[p, 4]
-                    s0, s1, s2, s3 = suffix[p, 0], suffix[p, 1], suffix[p, 2], suffix[p, 3]
-                    g5 += w * v0
-                    g6 += w * v1
-                    g7 += w * v2
-                    g9 += w * v4
-                    v_a = (v0 * (cr * Ti - s0 * inv) + v1 * (cg * Ti - s1 * inv)
-                           + v2 * (cb * Ti - s2 * inv) + v4 * (z * Ti - s3 * inv)
-                           + v3 * T_end[p] * inv)  # fmt: skip
-                    suffix[p, 0] = s0 + cr * w
-                    suffix[p, 1] = s1 + cg * w
-                    suffix[p, 2] = s2 + cb * w
-                    suffix[p, 3] = s3 + z * w
-                    if unclamped:
-                        g8 += vis * v_a
-                        v_s = -o * vis * v_a  # d loss / d sigma
-                        g0 -= v_s * (a * dx + b * dy)
-                        g1 -= v_s * (b * dx + c * dy)
-                        g2 += v_s * 0.5 * dx * dx
-                        g3 += v_s * dx * dy
-                        g4 += v_s * 0.5 * dy * dy
+                    d = _visit_grad(p, alpha, vis, x0 + li + 0.5 - mx, y0 + lj + 0.5 - my, raw <= ALPHA_MAX,
+                                    T, T_end, vc, suffix, cr, cg, cb, z, a, b, c, o)  # fmt: skip
+                    g0, g1, g2, g3, g4 = g0 + d[0], g1 + d[1], g2 + d[2], g3 + d[3], g4 + d[4]
+                    g5, g6, g7, g8, g9 = g5 + d[5], g6 + d[6], g7 + d[7], g8 + d[8], g9 + d[9]
+            else:
+                i0, i1 = _pixel_box(mx, radii[cam, g, 0], x0, x1)
+                j0, j1 = _pixel_box(my, radii[cam, g, 1], y0, y1)
+                ell = _ellipse(a, b, c, thresh[cam, g])
+                for j in range(j0, j1 + 1):
+                    r0, r1 = _row_range(mx, my, ell, j, i0, i1)
+                    for i in range(r0, r1 + 1):
+                        p = (j - y0) * tw + (i - x0)
+                        if kk >= last[p]:
+                            continue
+                        alpha, vis, dx, dy, unclamped = _alpha(i + 0.5, j + 0.5, mx, my, a, b, c, o)
+                        if alpha == 0.0:
+                            continue
+                        d = _visit_grad(p, alpha, vis, dx, dy, unclamped, T, T_end, vc, suffix, cr, cg, cb, z, a, b, c, o)
+                        g0, g1, g2, g3, g4 = g0 + d[0], g1 + d[1], g2 + d[2], g3 + d[3], g4 + d[4]
+                        g5, g6, g7, g8, g9 = g5 + d[5], g6 + d[6], g7 + d[7], g8 + d[8], g9 + d[9]
             g_isect[k, 0], g_isect[k, 1], g_isect[k, 2], g_isect[k, 3], g_isect[k, 4] = g0, g1, g2, g3, g4
             g_isect[k, 5], g_isect[k, 6], g_isect[k, 7], g_isect[k, 8], g_isect[k, 9] = g5, g6, g7, g8, g9
         for k in range(start + kmax, offsets[t + 1]):  # behind every pixel's last contributor: no gradient

@@ -161,3 +161,48 @@ def test_bad_config_raises():
         SmgsRenderer(SmgsConfig(mesh_grid=1))
     with pytest.raises(ClodsError, match="grid_features"):
         SmgsRenderer(SmgsConfig(grid_features=0))
+
+
+def _general_path(r: SmgsRenderer, verts: torch.Tensor) -> torch.Tensor:
+    """Opacities through the full MLP (features, every layer), as while fitting: the frozen cache switched off by
+    marking the first layer trainable for the call."""
+    w0 = r.params["mlp_w0"]
+    w0.requires_grad_(True)
+    try:
+        means = r.gaussians(verts)[0]
+        return r.opacities(means, verts)
+    finally:
+        w0.requires_grad_(False)
+
+
+@pytest.mark.parametrize("inputs,grid", [("both", 48), ("both", 0), ("mesh", 8), ("world", 8), ("none", 8)])
+def test_frozen_mlp_cache_gives_the_full_mlps_opacities_and_gradients(mesh, inputs, grid):
+    r = fitted(mesh, SmgsConfig(iterations=0, inputs=inputs, mesh_grid=grid, world_freqs=1), rig(1, 12), cls=SmgsRenderer)
+    _randomise_mlp(r)
+    x = torch.tensor(mesh[0], dtype=torch.float64, requires_grad=True)  # float64: only the summation order differs
+    frozen = r.opacities(r.gaussians(x)[0], x)
+    assert (getattr(r, "_frozen", None) is not None) == (inputs in ("both", "mesh"))  # only a mesh input is worth caching
+    y = x.detach().clone().requires_grad_(True)
+    full = _general_path(r, y)
+    torch.testing.assert_close(frozen, full, atol=1e-12, rtol=1e-12)
+    if inputs in ("mesh", "none"):
+        assert not frozen.requires_grad  # no path from the vertices
+        return
+    weights = torch.linspace(-1.0, 1.0, frozen.numel(), dtype=torch.float64)
+    (frozen * weights).sum().backward()
+    (full * weights).sum().backward()
+    torch.testing.assert_close(x.grad, y.grad, atol=1e-12, rtol=1e-10)
+    assert float(x.grad.abs().max()) > 0  # the world position reaches the opacity
+
+
+def test_frozen_mlp_cache_follows_changed_weights_and_is_not_pickled(mesh):
+    import pickle
+
+    r = fitted(mesh, SmgsConfig(iterations=0), rig(1, 12), cls=SmgsRenderer)
+    x = torch.tensor(mesh[0], dtype=torch.float32)
+    before = r.opacities(r.gaussians(x)[0], x)
+    _randomise_mlp(r, seed=3)  # in place: the weights' versions move
+    after = r.opacities(r.gaussians(x)[0], x)
+    assert not torch.allclose(before, after)
+    torch.testing.assert_close(after, _general_path(r, x).detach(), atol=1e-5, rtol=1e-5)  # float32 summation order
+    assert "_frozen" in vars(r) and "_frozen" not in vars(pickle.loads(pickle.dumps(r)))

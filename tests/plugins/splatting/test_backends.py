@@ -101,9 +101,10 @@ def test_forward_without_gradients_renders_the_same_image() -> None:
         assert torch.equal(getattr(out, k), a[k]), k
 
 
-def test_kept_exponentials_fit_the_visit_bound_and_match_math_exp() -> None:
-    """Every visit the forward keeps lies inside its tile's share of the buffer (numba does not check bounds), and
-    the kept values are exp(-sigma) of those pixels to a few ulp (brute force over each Gaussian's pixel box)."""
+def test_kept_visits_fit_the_bound_cover_every_live_pixel_and_match_math_exp() -> None:
+    """The visits the forward keeps for the backward: inside their tile's share of the buffer (numba does not check
+    bounds), exp(-sigma) of their pixel to a few ulp, on the Gaussian's row ranges, and present for every pixel the
+    Gaussian contributes to (brute force over each Gaussian's pixel box)."""
     import math
 
     from clods_bench.plugins.splatting import fast_kernels as K
@@ -116,43 +117,61 @@ def test_kept_exponentials_fit_the_visit_bound_and_match_math_exp() -> None:
         kept["args"] = args
 
     scene = random_scene(200, seed=11)
+    scene["opacities"] = scene["opacities"].clamp(max=0.9) + 0.09  # saturated pixels, whose later visits are not kept
     cameras = camera_rig(2, np.zeros(3), 2.5, 48, 40)
     K.raster_fwd = spy
     try:
         _render_with_grads(scene, cameras, "cpu", tile=16)
     finally:
         K.raster_fwd = orig
-    means2d, conics, _, opac, _, radii, _, offsets, ids, W, H, tile, tiles_x, tiles_y = kept["args"][:14]
-    vis_buf, vis_start, tile_buf = kept["args"][-3:]
-    n_open = kept["args"][-4]
+    means2d, conics, _, opac, _, radii, thresh, offsets, ids, W, H, tile, tiles_x, tiles_y = kept["args"][:14]
+    n_last = kept["args"][18]
+    vis_buf, vis_ij, vis_span, tile_buf = kept["args"][-4:]
     per_cam = tiles_x * tiles_y
-    n_checked = 0
+    n_live = 0
     for t in range(len(offsets) - 1):
         cam, x0, y0, x1, y1 = K.tile_rect(t, per_cam, tiles_x, tile, W, H)
-        ends = []
-        for k in range(offsets[t], offsets[t + 1]):
-            if k - offsets[t] >= int(n_open[cam, y0:y1, x0:x1].max()):
-                break  # every pixel of the tile saturated before this Gaussian
+        kmax = int(n_last[cam, y0:y1, x0:x1].max())
+        ends = [tile_buf[t]]
+        for k in range(offsets[t], offsets[t] + kmax):
+            lo, hi = vis_span[k]
+            assert lo == ends[-1] and hi >= lo, (t, k)  # contiguous, in Gaussian order
+            ends.append(hi)
             g = ids[k]
-            (mx, my), (a, b, c) = means2d[cam, g], conics[cam, g]
+            (mx, my), (a, b, c), o = means2d[cam, g], conics[cam, g], opac[cam, g]
+            visits = {(int(i) + x0, int(j) + y0): vis_buf[e] for e, (i, j) in zip(range(lo, hi), vis_ij[lo:hi])}
             i0, i1 = K._pixel_box(mx, radii[cam, g, 0], x0, x1)
             j0, j1 = K._pixel_box(my, radii[cam, g, 1], y0, y1)
-            ell = K._ellipse(a, b, c, kept["args"][6][cam, g])
-            cur = vis_start[k]
-            for j in range(j0, j1 + 1):
-                r0, r1 = K._row_range(mx, my, ell, j, i0, i1)
-                for i in range(r0, r1 + 1):
-                    if k - offsets[t] >= n_open[cam, j, i]:
-                        continue
-                    dx, dy = i + 0.5 - mx, j + 0.5 - my
-                    expect = math.exp(-(0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy))
-                    assert abs(vis_buf[cur] - expect) <= 4 * np.spacing(expect), (t, k, i, j)
-                    cur += 1
-                    n_checked += 1
-            ends.append(cur)
-        if ends:
-            assert tile_buf[t] <= min(vis_start[offsets[t]], *ends) and max(ends) <= tile_buf[t + 1], t
-    assert n_checked > 1000
+            ell = K._ellipse(a, b, c, thresh[cam, g])
+            chords = {(i, j) for j in range(j0, j1 + 1) for i in range(K._row_range(mx, my, ell, j, i0, i1)[0], K._row_range(mx, my, ell, j, i0, i1)[1] + 1)}
+            assert set(visits) <= chords, (t, k)
+            for (i, j), vis in visits.items():
+                dx, dy = i + 0.5 - mx, j + 0.5 - my
+                expect = math.exp(-(0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy))
+                assert abs(vis - expect) <= 4 * np.spacing(expect), (t, k, i, j)
+            for i, j in chords:  # a pixel this Gaussian contributes to must have its visit kept
+                dx, dy = i + 0.5 - mx, j + 0.5 - my
+                live = k - offsets[t] < n_last[cam, j, i] and o * math.exp(-(0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy)) >= K.ALPHA_MIN
+                if live:
+                    assert (i, j) in visits, (t, k, i, j)
+                    n_live += 1
+        assert ends[-1] <= tile_buf[t + 1], t
+    assert n_live > 1000
+
+
+def test_backward_without_kept_visits_gives_the_same_gradients(monkeypatch) -> None:
+    """Over the memory budget the forward keeps nothing and the backward recomputes: bit-identical gradients."""
+    from clods_bench.plugins.splatting import fast_cpu
+
+    scene = random_scene(200, seed=12)
+    cameras = camera_rig(3, np.zeros(3), 2.5, 40, 36)
+    img, grads = _render_with_grads(scene, cameras, "cpu")
+    monkeypatch.setattr(fast_cpu, "KEEP_BYTES", 0)
+    img0, grads0 = _render_with_grads(scene, cameras, "cpu")
+    for k in img:
+        assert torch.equal(img[k], img0[k]), k
+    for k in grads:
+        assert torch.equal(grads[k], grads0[k]), k
 
 
 def test_exp_neg_is_within_a_few_ulp_of_numpy() -> None:
