@@ -132,19 +132,19 @@ def _pixels(x: Tensor) -> np.ndarray:
 
 
 TILE_SIZES = (64, 32, 16)  # largest first: fewer Gaussian-tile intersections, less per-intersection setup
-TILES_PER_THREAD = 8  # enough tiles per thread that handing them out one by one balances the load
+MIN_TILES = 16  # enough tiles that handing them out one by one keeps 2 threads busy
 
 
-def auto_tile(num_cameras: int, width: int, height: int, threads: int | None = None) -> int:
-    """The largest tile of `TILE_SIZES` that still gives every numba thread `TILES_PER_THREAD` tiles (else 16).
+def auto_tile(num_cameras: int, width: int, height: int) -> int:
+    """The largest tile of `TILE_SIZES` that still cuts the rig into `MIN_TILES` tiles (else the smallest).
 
-    Results do not depend on the tile; speed does: on the `bench render` scene (8 views of 128 px, 2 threads)
-    64 px tiles cut forward+backward by about 7 % against 16 px (fewer intersections to set up), while at
-    `ci` size (4 views of 64 px) 64 px tiles would leave 4 tiles for 2 threads.
+    Results do not depend on the tile, up to the order in which a Gaussian's per-tile gradients are summed; so that
+    they do not depend on the thread count either, the choice looks at the rig alone. On the `bench render` scene
+    (8 views of 128 px: 64 px tiles) it cuts forward+backward by about 7 % against 16 px tiles (fewer intersections
+    to set up); at `ci` size (4 views of 64 px) it takes 32 px, as 64 px tiles would leave 4 tiles for 2 threads.
     """
-    threads = numba.get_num_threads() if threads is None else threads
     for size in TILE_SIZES:
-        if num_cameras * math.ceil(width / size) * math.ceil(height / size) >= TILES_PER_THREAD * threads:
+        if num_cameras * math.ceil(width / size) * math.ceil(height / size) >= MIN_TILES:
             return size
     return TILE_SIZES[-1]
 

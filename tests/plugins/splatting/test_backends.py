@@ -79,14 +79,13 @@ def test_tile_size_does_not_change_the_image(backend: str) -> None:
             torch.testing.assert_close(gd[k], ga[k], atol=1e-9, rtol=1e-9)
 
 
-def test_auto_tile_leaves_every_thread_enough_tiles() -> None:
+def test_auto_tile_cuts_the_rig_into_enough_tiles() -> None:
     from clods_bench.plugins.splatting.fast_cpu import auto_tile
 
-    assert auto_tile(8, 128, 128, threads=2) == 64  # bench render: 32 tiles of 64 px
-    assert auto_tile(4, 64, 64, threads=2) == 32  # ci: 16 tiles of 32 px (64 px would leave 4)
-    assert auto_tile(2, 37, 29, threads=2) == 16  # fewer than 16 tiles at any size: the smallest
-    assert auto_tile(30, 800, 800, threads=16) == 64
-    assert auto_tile(8, 128, 128, threads=16) == 32  # 128 tiles of 32 px for 16 threads
+    assert auto_tile(8, 128, 128) == 64  # bench render: 32 tiles of 64 px
+    assert auto_tile(4, 64, 64) == 32  # ci: 16 tiles of 32 px (64 px would leave 4)
+    assert auto_tile(2, 37, 29) == 16  # fewer than 16 tiles at any size: the smallest
+    assert auto_tile(30, 800, 800) == 64
 
 
 def test_forward_without_gradients_renders_the_same_image() -> None:
