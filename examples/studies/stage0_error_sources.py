@@ -1,7 +1,7 @@
 """Where stage 0's error comes from, per training video of a preset: the surfels' depth, or the sheet step.
 
 For frame 0 of each training trajectory, seen by the training cameras (as `run initial_mesh` does), prints the
-attached RMSE (% of the cloth's size) of the height-field sheet built from
+attached RMSE (% of the cloth's size) of the sheet (isomap / plane parameterisation, `sheet_mesh`) built from
   1. the fitted surfels' median-depth maps (stage 0 as it runs, Stage0Config defaults, seed 0),
   2. perfect depth maps (the true mesh rasterised into the same views), with the RMSE of the fused points to the
      true surface beside it (what the TSDF gives the sheet step),
@@ -42,10 +42,13 @@ def sample_surface(verts: np.ndarray, cells: np.ndarray, n: int, seed: int = 0) 
     return np.einsum("nkx,nk->nx", tri[f], rng.dirichlet(np.ones(3), n))
 
 
-def sheet_error(points: np.ndarray, gt: np.ndarray, num_nodes: int) -> float:
-    """Attached RMSE (m) of the true nodes to the sheet made from `points`."""
-    mesh = sheet_from_points(points, num_nodes)
-    return float(np.sqrt(np.mean(attach(gt, mesh.rest_pos, mesh.cells).distance ** 2)))
+def sheet_error(points: np.ndarray, gt: np.ndarray, num_nodes: int) -> tuple[float, float]:
+    """Attached RMSE (m) of the true nodes to the sheet made from `points`: (isomap sheet, plane sheet)."""
+    out = []
+    for par in ("isomap", "plane"):
+        mesh = sheet_from_points(points, num_nodes, parameterization=par)
+        out.append(float(np.sqrt(np.mean(attach(gt, mesh.rest_pos, mesh.cells).distance ** 2))))
+    return out[0], out[1]
 
 
 def fused_points(depth: np.ndarray, cameras, voxel: float) -> np.ndarray:
@@ -63,7 +66,7 @@ def main(preset: str) -> None:
     cams = [rig[v] for v in splits.train_views]
     opts = S.Stage0Config()
     print(f"preset {preset}: trajectories {list(splits.train)}, views {list(splits.train_views)}")
-    print("traj | surfels % | perfect depth % (fused points to truth, m) | true points % | max signed cos")
+    print("traj | surfels % | perfect depth % (fused points to truth, m) | true points % | max signed cos   (% as isomap / plane sheet)")
     for i in splits.train:
         truth = store.load_trajectory(i)
         gt = truth.world_pos[0].astype(np.float64)
@@ -99,8 +102,9 @@ def main(preset: str) -> None:
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         cos = (n / np.linalg.norm(n, axis=1, keepdims=True)) @ axes[2]
         cos *= -1.0 if cos.mean() > 0 else 1.0  # sign so that the plane's normal side is negative on average
-        print(f"{i} | {100 * e_surf / size:.2f} (fit {fit_s:.0f} s) | {100 * e_perfect / size:.2f} ({on_truth:.4f}) | "
-              f"{100 * e_true / size:.2f} | {cos.max():+.2f}", flush=True)  # fmt: skip
+        pct = lambda e: f"{100 * e[0] / size:.2f} / {100 * e[1] / size:.2f}"  # noqa: E731
+        print(f"{i} | {pct(e_surf)} (fit {fit_s:.0f} s) | {pct(e_perfect)} ({on_truth:.4f}) | {pct(e_true)} | {cos.max():+.2f}",
+              flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

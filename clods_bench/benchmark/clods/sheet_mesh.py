@@ -5,18 +5,22 @@ shell or a two-sided surface, with thousands of irregular triangles, sliver face
 learned cloth simulator needs one open manifold sheet with a chosen number of nodes, well-shaped triangles,
 `mesh_pos` rest coordinates that measure its edges, and handle nodes. `sheet_from_points` builds it:
 
-1. the sheet's best-fit plane by PCA (axes e1, e2 of most variance, normal n = e1 x e2); the points become
-   (u, v) in the plane and a height h along n;
+1. coordinates (u, v) on the sheet. `parameterization="isomap"` (the default): the sheet unrolled by its own
+   geodesic distances (landmark Isomap: a k-nearest-neighbour graph over the points, shortest paths from
+   farthest-point landmarks, classical MDS of the landmarks and the landmark triangulation of every other point;
+   de Silva & Tenenbaum 2004), turned onto the best-fit plane of the points (PCA axes e1, e2 of most variance,
+   normal n = e1 x e2) so a flat sheet gets the plane's axes and handedness. A flag whose free end curls over
+   itself unrolls to one layer. `parameterization="plane"`: the plane's (u, v) alone, with a height h along n;
 2. a regular (u, v) grid over the points' extent, its spacing chosen (a few fixed-point iterations) so the kept
    part has about `num_nodes` nodes; a grid cell is kept when points fall in it: a 2D occupancy mask, closed
    morphologically (gaps between sparse points), reduced to its largest 4-connected component, and completed
    where two kept cells touch only at a corner (a node joining two fans is not manifold); the mask's edge is a
    staircase, so boundary nodes further than the point spacing from every point are pulled onto the points'
    boundary (by at most one cell, never thinning a triangle below 15 % of its area);
-3. each node's height from the points within `radius` of it in (u, v): a weighted least-squares quadratic
-   (linear, then the median, when few points) after dropping points further than 3 robust deviations from the
-   local median, clamped to the kept heights' range (no wild extrapolation at the boundary): the mid-surface of a
-   two-sided shell, with no curvature bias;
+3. each node's position from the points within `radius` of it in (u, v): per coordinate (x, y, z for isomap, the
+   height h for the plane) a weighted least-squares quadratic (linear, then the median, when few points) after
+   dropping points further than 3 robust deviations from the local median, clamped to the kept values' range (no
+   wild extrapolation at the boundary): the mid-surface of a two-sided shell, with no curvature bias;
 4. kept cells split along alternating diagonals (like `make_flag_mesh`), counter-clockwise in (u, v);
 5. `rest_pos` = the 3D nodes; `mesh_pos` = a geodesic-preserving flattening: the 2D layout whose edge lengths
    best match the 3D rest edges (nonlinear least squares started from the (u, v) grid, so it stays a valid
@@ -27,12 +31,17 @@ learned cloth simulator needs one open manifold sheet with a chosen number of no
 6. every node NORMAL; `handles_from_tracks` + `with_handles` mark the pinned nodes from meshes tracked over the
    first frames.
 
-Limit: the sheet is a height field over one plane. Cloth folded over itself along the plane normal (a drape
-hanging on both sides of a bar, a crumpled sheet, a tube) has several layers over one (u, v) point and is not
-representable: the layers are averaged into one. A closed or tubular cloth needs a surface-based remesher instead.
+Limits. With "plane" the sheet is a height field over one plane: cloth that turns over itself relative to the plane
+(a curled free end, a drape hanging on both sides of a bar) has several layers over one (u, v) point and they are
+averaged into one. "isomap" unrolls such a sheet as long as its layers stay further apart than the neighbour
+graph's edges (about 3 point spacings after the voxel thinning below); layers closer than that short-circuit the
+geodesics and are merged again. A closed or tubular cloth (no disk topology) is not a sheet either way and needs a
+surface-based remesher.
 """
 
 from __future__ import annotations
+
+from typing import Any, Callable
 
 import numpy as np
 
@@ -65,6 +74,123 @@ def _frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if np.linalg.norm(np.cross(e1, e2) - n) > 1e-6:  # pragma: no cover - eigh returns orthonormal vectors
         raise ClodsError("the PCA axes are not orthonormal", where="points")
     return c, np.stack([e1, e2, n])
+
+
+PARAMETERIZATIONS = ("isomap", "plane")
+ISOMAP_POINTS = 2500
+"""Points the isomap parameterisation keeps at least (voxel-thinned to about max(this, 8 x num_nodes)): an even
+density for the neighbour graph, and a bounded cost (its shortest paths run from each landmark)."""
+
+
+def voxel_thin(points: np.ndarray, target: int) -> np.ndarray:
+    """About `target` points: the centroids of the occupied cells of a cubic grid whose cell is sized to give that
+    many (a few fixed-point steps); `points` itself when it holds no more than `target`."""
+    p = np.asarray(points, np.float64)
+    if p.shape[0] <= target:
+        return p
+    lo = p.min(axis=0)
+    cell = float(np.ptp(p, axis=0).max()) / np.sqrt(target)
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
+    for _ in range(16):
+        _, inv, cnt = np.unique(np.floor((p - lo) / cell).astype(np.int64), axis=0, return_inverse=True, return_counts=True)
+        if best is None or abs(cnt.size - target) < abs(best[1].size - target):
+            best = (cnt.size, cnt, inv.reshape(-1))
+        if abs(cnt.size - target) <= 0.05 * target:
+            break
+        cell *= float(np.sqrt(cnt.size / target))  # a sheet's cell count goes as 1 / cell^2
+    m, cnt, inv = best  # type: ignore[misc]
+    out = np.zeros((m, 3))
+    np.add.at(out, inv, p)
+    return out / cnt[:, None]
+
+
+def landmark_mds(sq_dist: np.ndarray, landmarks: np.ndarray, dims: int = 2) -> np.ndarray:
+    """(N, dims) coordinates of N points from their squared distances `sq_dist` (L, N) to L of them (`landmarks`,
+    indices into N): classical MDS of the landmarks, every point placed by distance triangulation (de Silva &
+    Tenenbaum 2004, landmark MDS). Exact, up to a rigid motion, for Euclidean distances of points in `dims`-space."""
+    delta = np.asarray(sq_dist, np.float64)
+    lm = delta[:, landmarks]
+    n = lm.shape[0]
+    centring = np.eye(n) - 1.0 / n
+    vals, vecs = np.linalg.eigh(-0.5 * centring @ lm @ centring)
+    vals, vecs = vals[::-1][:dims], vecs[:, ::-1][:, :dims]
+    if not np.all(vals > 1e-12 * max(float(vals[0]), 1e-300)):
+        raise ClodsError(f"the geodesic distances span {int(np.sum(vals > 0))} dimension(s), not {dims}", where="points")
+    pseudo = vecs.T / np.sqrt(vals)[:, None]  # (dims, L)
+    return (-0.5 * pseudo @ (delta - lm.mean(axis=1)[:, None])).T
+
+
+def geodesic_uv(points: np.ndarray, neighbours: int = 8, landmarks: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """(indices of the points kept, (M,2) coordinates): the points' surface unrolled by geodesic distances.
+
+    The geodesics are shortest paths over the symmetric `neighbours`-nearest-neighbour graph (its largest connected
+    component is kept: a stray cluster is dropped); `landmarks` of them chosen by farthest-point sampling along the
+    graph, then `landmark_mds`, scaled so that graph neighbours keep their 3D distances (median). Shortest paths run
+    from the landmarks only, so the cost grows linearly with the points."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, np.float64)
+    k = min(int(neighbours), p.shape[0] - 1)
+    dist, idx = cKDTree(p).query(p, k=k + 1)
+    n = p.shape[0]
+    rows = np.repeat(np.arange(n), k)
+    graph = csr_matrix((np.maximum(dist[:, 1:].ravel(), 1e-12), (rows, idx[:, 1:].ravel())), shape=(n, n))
+    graph = graph.maximum(graph.T).tocsr()
+    _, label = connected_components(graph, directed=False)
+    kept = np.flatnonzero(label == np.argmax(np.bincount(label)))
+    if kept.size < 10:
+        raise ClodsError(f"the neighbour graph's largest piece holds {kept.size} points; a sheet needs at least 10", where="points")
+    graph = graph[kept][:, kept]
+    count = min(int(landmarks), kept.size)
+    first = int(np.argmax(dijkstra(graph, indices=0)))  # an extreme point: the farthest from an arbitrary one
+    chosen, rows_d = [first], [dijkstra(graph, indices=first)]
+    nearest = rows_d[0].copy()
+    while len(chosen) < count:
+        nxt = int(np.argmax(nearest))
+        if nearest[nxt] <= 0.0:
+            break
+        chosen.append(nxt)
+        rows_d.append(dijkstra(graph, indices=nxt))
+        np.minimum(nearest, rows_d[-1], out=nearest)
+    uv = landmark_mds(np.stack(rows_d) ** 2, np.asarray(chosen))
+    # graph paths zigzag, a few % longer than the surface's geodesics: rescale so neighbours keep their 3D distance
+    pairs = graph.tocoo()
+    flat = np.linalg.norm(uv[pairs.row] - uv[pairs.col], axis=1)
+    ok = flat > 0
+    return kept, uv * float(np.median(pairs.data[ok] / flat[ok]))
+
+
+def _extend_uv(thin: np.ndarray, thin_uv: np.ndarray, points: np.ndarray, neighbours: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """(points kept, their (u, v)): every point placed from its nearest thinned point by that point's local affine map
+    from 3D to (u, v) (least squares over its neighbours, the sheet's normal direction cut off), so the fit keeps
+    every point's density and a boundary point lands outside the thinned points rather than among them. Points whose
+    nearest thinned point is further than 2 thinned spacings (a stray cluster the graph dropped) are left out."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(thin)
+    dist, nb = tree.query(thin, k=min(neighbours, thin.shape[0] - 1) + 1)
+    spacing = float(np.median(dist[:, 1]))
+    dx = thin[nb[:, 1:]] - thin[:, None]
+    du = thin_uv[nb[:, 1:]] - thin_uv[:, None]
+    jac = np.linalg.pinv(dx, rcond=0.1) @ du  # (M,3,2): dx @ jac ~ du; the out-of-sheet direction is below rcond
+    d, j = tree.query(points)
+    near = d <= 2.0 * spacing
+    q, j = points[near], j[near]
+    return q, thin_uv[j] + np.einsum("nx,nxu->nu", q - thin[j], jac[j])
+
+
+def _align_to_plane(uv: np.ndarray, plane_uv: np.ndarray) -> np.ndarray:
+    """`uv` mirrored (if need be) and turned to best match `plane_uv`: the plane's axes and handedness (orthogonal
+    Procrustes, the mirror chosen by the sign of the least-squares linear map between the two)."""
+    a, b = uv - uv.mean(axis=0), plane_uv - plane_uv.mean(axis=0)
+    lin = np.linalg.lstsq(a, b, rcond=None)[0]
+    if np.linalg.det(lin) < 0:
+        a[:, 1] = -a[:, 1]
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
+    return a @ (U @ D @ Vt) + plane_uv.mean(axis=0)
 
 
 def _occupancy(uv: np.ndarray, lo: np.ndarray, nx: int, ny: int, du: float, dv: float, closing: int) -> np.ndarray:
@@ -112,8 +238,9 @@ def _node_mask(occ: np.ndarray) -> np.ndarray:
     return nodes
 
 
-def _heights(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
-    """Height at each node: robust local quadratic / linear fit / median of the points near it (see the module docstring)."""
+def _local_fit(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
+    """The height `h` of the points at each node: robust local quadratic / linear fit / median of the points near it
+    in (u, v) (see the module docstring)."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(uv)
@@ -143,6 +270,54 @@ def _heights(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float)
         coef, _, rank, _ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
         # clamped to the neighbours' range: a one-sided neighbourhood (a boundary node) must not extrapolate wildly
         out[i] = np.clip(coef[0], y.min(), y.max()) if rank == A.shape[1] else np.median(y)
+    return out
+
+
+def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
+    """3D node positions over an isomap (u, v): the plane method's height fit, made local. Per node, the points
+    within `radius` (else its 12 nearest) give a weighted affine map (u, v) -> xyz, the tangent plane there; points
+    further than 3 robust deviations from it along its normal are dropped and the map refitted; the node sits on the
+    map plus a robust quadratic height along the normal, clamped to the kept points' heights. A boundary node thus
+    extrapolates along the tangent plane only, never along the normal."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(uv)
+    near = tree.query_ball_point(nodes_uv, radius)
+    k = min(12, uv.shape[0])
+    out = np.empty((nodes_uv.shape[0], 3))
+    for i, idx in enumerate(near):
+        if len(idx) < 6:
+            idx = tree.query(nodes_uv[i], k=k)[1]
+        idx = np.asarray(idx)
+        q, s = xyz[idx], (uv[idx] - nodes_uv[i]) / radius
+        w = np.exp(-2.0 * np.sum(s**2, axis=1))
+        keep = np.ones(idx.size, dtype=bool)
+        coef = None
+        for _ in range(2):  # the tangent plane, then again without the points far off it
+            lin = np.column_stack([np.ones(int(keep.sum())), s[keep]])
+            sw = np.sqrt(w[keep])[:, None]
+            coef, _, rank, _ = np.linalg.lstsq(lin * sw, q[keep] * sw, rcond=None)
+            if rank < 3:
+                coef = None
+                break
+            normal = np.cross(coef[1], coef[2])
+            normal /= max(float(np.linalg.norm(normal)), 1e-300)
+            height = (q - np.column_stack([np.ones(idx.size), s]) @ coef) @ normal
+            med = np.median(height[keep])
+            mad = 1.4826 * np.median(np.abs(height[keep] - med))
+            keep = np.abs(height - med) <= max(3.0 * mad, 1e-9 + 1e-6 * radius)
+            if keep.sum() < 4:
+                coef = None
+                break
+        if coef is None:  # too few or degenerate points: their weighted mean
+            out[i] = np.sum(w[:, None] * q, axis=0) / np.sum(w)
+            continue
+        y, sk, wk = height[keep], s[keep], w[keep]
+        quad = np.column_stack([np.ones_like(y), sk[:, 0], sk[:, 1], sk[:, 0] ** 2, sk[:, 0] * sk[:, 1], sk[:, 1] ** 2])
+        A = quad if y.size >= 12 else quad[:, :3]
+        c, _, rank, _ = np.linalg.lstsq(A * np.sqrt(wk)[:, None], y * np.sqrt(wk), rcond=None)
+        h = float(np.clip(c[0], y.min(), y.max())) if rank == A.shape[1] else float(np.median(y))
+        out[i] = coef[0] + h * normal
     return out
 
 
@@ -192,28 +367,59 @@ def _triangulate(occ: np.ndarray, nx: int) -> np.ndarray:
     return np.concatenate([t1, t2], axis=0).astype(np.int64)
 
 
-def flatten_geodesic(rest: np.ndarray, cells: np.ndarray, init: np.ndarray) -> np.ndarray:
-    """(V,2) layout whose edge lengths best match `rest`'s (least squares), started from `init` (V,2), aligned to it."""
-    from scipy.optimize import least_squares
+FOLD_MIN = 0.1
+"""`flatten_geodesic` keeps every triangle's signed area above this fraction of its 3D area (a hinge residual)."""
+FOLD_WEIGHT = 10.0
+"""Weight of that hinge against the relative edge-length residuals."""
+
+
+def flatten_problem(rest: np.ndarray, cells: np.ndarray) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], Any]]:
+    """(residual, sparse Jacobian) of `flatten_geodesic` over the flattened (V*2,) layout: relative edge-length
+    errors, then the fold hinge FOLD_WEIGHT * min(0, signed area / 3D area - FOLD_MIN) per triangle."""
     from scipy.sparse import csr_matrix
 
     edges = edges_from_cells(cells)
     length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
-    n_e, n_v = edges.shape[0], rest.shape[0]
-    rows = np.repeat(np.arange(n_e), 4)
-    cols = np.stack([2 * edges[:, 0], 2 * edges[:, 0] + 1, 2 * edges[:, 1], 2 * edges[:, 1] + 1], 1).ravel()
+    tri = rest[cells]
+    area3 = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    n_e, n_v, n_f = edges.shape[0], rest.shape[0], cells.shape[0]
+    rows = np.concatenate([np.repeat(np.arange(n_e), 4), n_e + np.repeat(np.arange(n_f), 6)])
+    cols = np.concatenate([
+        np.stack([2 * edges[:, 0], 2 * edges[:, 0] + 1, 2 * edges[:, 1], 2 * edges[:, 1] + 1], 1).ravel(),
+        np.stack([2 * cells[:, 0], 2 * cells[:, 0] + 1, 2 * cells[:, 1], 2 * cells[:, 1] + 1, 2 * cells[:, 2], 2 * cells[:, 2] + 1], 1).ravel(),
+    ])  # fmt: skip
 
     def residual(x: np.ndarray) -> np.ndarray:
         m = x.reshape(n_v, 2)
-        return (np.linalg.norm(m[edges[:, 0]] - m[edges[:, 1]], axis=1) - length) / length
+        edge = (np.linalg.norm(m[edges[:, 0]] - m[edges[:, 1]], axis=1) - length) / length
+        fold = FOLD_WEIGHT * np.minimum(_signed_areas(m, cells) / area3 - FOLD_MIN, 0.0)
+        return np.concatenate([edge, fold])
 
     def jac(x: np.ndarray) -> csr_matrix:
         m = x.reshape(n_v, 2)
         dvec = m[edges[:, 0]] - m[edges[:, 1]]
         g = dvec / (np.linalg.norm(dvec, axis=1, keepdims=True) * length[:, None])
-        vals = np.concatenate([g, -g], axis=1).ravel()
-        return csr_matrix((vals, (rows, cols)), shape=(n_e, 2 * n_v))
+        a, b, c = m[cells[:, 0]], m[cells[:, 1]], m[cells[:, 2]]
+        d_area = 0.5 * np.stack([b[:, 1] - c[:, 1], c[:, 0] - b[:, 0], c[:, 1] - a[:, 1], a[:, 0] - c[:, 0],
+                                 a[:, 1] - b[:, 1], b[:, 0] - a[:, 0]], axis=1)  # fmt: skip
+        active = _signed_areas(m, cells) / area3 < FOLD_MIN
+        d_area *= (FOLD_WEIGHT * active / area3)[:, None]
+        vals = np.concatenate([np.concatenate([g, -g], axis=1).ravel(), d_area.ravel()])
+        return csr_matrix((vals, (rows, cols)), shape=(n_e + n_f, 2 * n_v))
 
+    return residual, jac
+
+
+def flatten_geodesic(rest: np.ndarray, cells: np.ndarray, init: np.ndarray) -> np.ndarray:
+    """(V,2) layout whose edge lengths best match `rest`'s (least squares), started from `init` (V,2), aligned to it.
+
+    A hinge residual per triangle (`flatten_problem`; signed area, counter-clockwise in `init` positive) keeps
+    triangles from turning over where noisy rest positions make a thin one: the edge lengths alone are as happy
+    with a folded layout as with a flat one."""
+    from scipy.optimize import least_squares
+
+    n_v = rest.shape[0]
+    residual, jac = flatten_problem(rest, cells)
     sol = least_squares(residual, init.ravel(), jac=jac, method="trf", tr_solver="lsmr", x_scale="jac", xtol=1e-10, ftol=1e-12)
     m = sol.x.reshape(n_v, 2)
     # rigid alignment (rotation, no reflection) onto the start, so the layout keeps the grid's orientation
@@ -229,10 +435,12 @@ def sheet_from_points(
     radius: float | None = None,
     closing: int = 1,
     snap: bool = True,
+    parameterization: str = "isomap",
 ) -> ClothMesh:
     """One open manifold cloth sheet of about `num_nodes` nodes fitted to `points` (N,3) (see the module docstring).
 
-    `radius`: the neighbourhood (metres, in the sheet's plane) of each node's height fit; None: 1.5 grid spacings.
+    `radius`: the neighbourhood (metres, in (u, v)) of each node's position fit; None: 1.5 grid spacings.
+    `parameterization`: "isomap" (geodesic, unrolls a sheet that turns over itself) or "plane" (a height field).
     `closing`: iterations of the morphological closing of the occupancy mask (fills gaps of about that many cells).
     `snap`: pull boundary nodes that overshoot the points (a grid's staircase edge) back onto the points' boundary.
     Raises ClodsError for bad input or when the points do not make a sheet.
@@ -244,12 +452,20 @@ def sheet_from_points(
         raise ClodsError(f"radius must be a positive number of metres, got {radius}", where="radius")
     if int(closing) != closing or closing < 0:
         raise ClodsError(f"closing must be a non-negative integer, got {closing}", where="closing")
+    if parameterization not in PARAMETERIZATIONS:
+        raise ClodsError(f"unknown parameterization {parameterization!r}; one of {', '.join(PARAMETERIZATIONS)}", where="parameterization")
     centre, axes = _frame(p)
     q = (p - centre) @ axes.T
     uv, h = q[:, :2], q[:, 2]
     span = uv.max(axis=0) - uv.min(axis=0)
     if span[1] <= 1e-9 * max(span[0], 1e-300):
         raise ClodsError("the points lie on a line, not a sheet", where="points")
+    if parameterization == "isomap":
+        thin = voxel_thin(p, max(ISOMAP_POINTS, 8 * int(num_nodes)))
+        kept, geo = geodesic_uv(thin)
+        thin = thin[kept]
+        p, uv = _extend_uv(thin, _align_to_plane(geo, ((thin - centre) @ axes.T)[:, :2]), p)
+        span = uv.max(axis=0) - uv.min(axis=0)
 
     target = int(num_nodes)
     spacing = float(np.sqrt(span[0] * span[1] / target))
@@ -279,8 +495,11 @@ def sheet_from_points(
     if snap:
         grid_uv = _snap_boundary(uv, grid_uv, cells, min(du, dv))
     r = 1.5 * max(du, dv) if radius is None else float(radius)
-    heights = _heights(uv, h, grid_uv, r)
-    rest = centre + grid_uv[:, :1] * axes[0] + grid_uv[:, 1:] * axes[1] + heights[:, None] * axes[2]
+    if parameterization == "isomap":
+        rest = _positions(uv, p, grid_uv, r)
+    else:
+        heights = _local_fit(uv, h, grid_uv, r)
+        rest = centre + grid_uv[:, :1] * axes[0] + grid_uv[:, 1:] * axes[1] + heights[:, None] * axes[2]
 
     mesh_pos = flatten_geodesic(rest, cells, grid_uv - grid_uv.min(axis=0))
     if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout (very noisy heights): keep the plane's

@@ -9,7 +9,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from clods_bench.benchmark.clods.sheet_mesh import handles_from_tracks, sheet_from_points, with_handles
+from clods_bench.benchmark.clods.sheet_mesh import (
+    FOLD_MIN,
+    flatten_geodesic,
+    flatten_problem,
+    geodesic_uv,
+    handles_from_tracks,
+    landmark_mds,
+    sheet_from_points,
+    voxel_thin,
+    with_handles,
+)
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
 from clods_bench.benchmark.cross_topology import attach, attached_rmse, chamfer, follow
 from clods_bench.datasets.cameras import Camera, camera_rig, look_at
@@ -215,21 +225,116 @@ def test_sheet_from_points_on_a_cylinder_section() -> None:
     assert sorted(span) == pytest.approx([1.0, 2.0], abs=0.05)
 
 
-def test_sheet_from_points_on_the_simulated_flag(flag_run: dict) -> None:
+@pytest.mark.parametrize("parameterization", ["isomap", "plane"])
+def test_sheet_from_points_on_the_simulated_flag(flag_run: dict, parameterization: str) -> None:
     x0, cells = flag_run["frames"][0], flag_run["mesh"].cells
     pts = sample_surface(x0, cells, 30000)
     for num in (64, 128, 500):
-        mesh = sheet_from_points(pts, num)
+        mesh = sheet_from_points(pts, num, parameterization=parameterization)
         stats = check_sheet(mesh, x0, cells, num, 2.0)
         assert stats["node_max"] < 0.04 and stats["node_mean"] < 0.01, (num, stats)
 
 
-def test_sheet_from_noisy_points_stays_on_the_cloth(flag_run: dict) -> None:
+@pytest.mark.parametrize("parameterization", ["isomap", "plane"])
+def test_sheet_from_noisy_points_stays_on_the_cloth(flag_run: dict, parameterization: str) -> None:
     x0, cells = flag_run["frames"][0], flag_run["mesh"].cells
     pts = sample_surface(x0, cells, 30000) + np.random.default_rng(1).normal(scale=0.005, size=(30000, 3))
     for num in (128, 1579):
-        stats = check_sheet(sheet_from_points(pts, num), x0, cells, num, 2.0)
+        stats = check_sheet(sheet_from_points(pts, num, parameterization=parameterization), x0, cells, num, 2.0)
         assert stats["node_mean"] < 0.005 and stats["node_max"] < 0.05 and stats["rmse"] < 0.01, (num, stats)
+
+
+def rigid_residual(a: np.ndarray, b: np.ndarray) -> float:
+    """RMS distance between `a` and `b` (N,2) once `a` is moved onto `b` by the best rotation / reflection."""
+    ac, bc = a - a.mean(axis=0), b - b.mean(axis=0)
+    U, _, Vt = np.linalg.svd(ac.T @ bc)
+    return float(np.sqrt(np.mean(np.sum((ac @ (U @ Vt) - bc) ** 2, axis=1))))
+
+
+def test_landmark_mds_is_exact_for_euclidean_distances() -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1.0, 1.0, (300, 2)) * [2.0, 0.5]
+    lm = rng.choice(300, 20, replace=False)
+    sq = np.sum((pts[lm][:, None] - pts[None]) ** 2, axis=2)
+    assert rigid_residual(landmark_mds(sq, lm), pts) < 1e-9
+    with pytest.raises(ClodsError, match="dimension"):  # points on a line do not make a 2D layout
+        line = np.outer(np.linspace(0.0, 1.0, 50), [1.0, 0.0])
+        landmark_mds(np.sum((line[:10, None] - line[None]) ** 2, axis=2), np.arange(10))
+
+
+def test_geodesic_uv_unrolls_a_cylinder_to_arc_length() -> None:
+    verts, cells = cylinder_sheet()
+    pts = sample_surface(verts, cells, 4000)
+    kept, uv = geodesic_uv(pts)
+    assert kept.size == pts.shape[0]
+    # the true (arc length, height) of each sample: invert the roll
+    truth = np.stack([np.arcsin(np.clip(pts[:, 0], -1, 1)), pts[:, 2]], axis=1)
+    assert np.std(uv - uv.mean(0)) / np.std(truth - truth.mean(0)) == pytest.approx(1.0, abs=0.05)  # to scale
+    iso = rigid_residual(uv, truth)
+    assert iso < 0.04  # metres, on a 2 x 1 m sheet rolled on a 1 m radius (graph paths zigzag)
+    # the plane projection shortens the 2 m arc to a 1.68 m chord
+    centred = pts - pts.mean(axis=0)
+    plane = centred @ np.linalg.eigh(centred.T @ centred)[1][:, 1:]
+    assert rigid_residual(plane, truth) > 2.0 * iso
+
+
+def test_voxel_thin_keeps_the_cloud_and_evens_it() -> None:
+    pts = np.random.default_rng(2).uniform(0.0, 1.0, (20000, 3)) * [2.0, 1.0, 0.01]
+    out = voxel_thin(pts, 2000)
+    assert abs(out.shape[0] - 2000) <= 200
+    assert (out.min(axis=0) >= pts.min(axis=0)).all() and (out.max(axis=0) <= pts.max(axis=0)).all()
+    assert voxel_thin(pts[:100], 2000).shape == (100, 3)
+
+
+def test_flatten_problem_jacobian_matches_finite_differences() -> None:
+    flag = make_flag_mesh(5, 4, 1.0, 0.6)
+    rest = np.column_stack([np.asarray(flag.mesh_pos, np.float64), np.random.default_rng(3).normal(scale=0.05, size=20)])
+    cells = np.asarray(flag.cells, np.int64)
+    residual, jac = flatten_problem(rest, cells)
+    x = np.asarray(flag.mesh_pos, np.float64).ravel().copy()
+    x[2 * 5 : 2 * 5 + 2] += [0.3, 0.25]  # node 5 dragged across its neighbours: some triangles fold, the hinge is on
+    assert (residual(x)[-cells.shape[0] :] < 0).any()
+    eps = 1e-7
+    fd = np.stack([(residual(x + eps * e) - residual(x - eps * e)) / (2 * eps) for e in np.eye(x.size)], axis=1)
+    np.testing.assert_allclose(jac(x).toarray(), fd, atol=1e-5)
+
+
+def test_flatten_geodesic_unfolds_a_dragged_layout() -> None:
+    flag = make_flag_mesh(6, 4, 1.0, 0.6)
+    rest = np.column_stack([np.asarray(flag.mesh_pos, np.float64), np.zeros(24)])
+    cells = np.asarray(flag.cells, np.int64)
+    init = np.asarray(flag.mesh_pos, np.float64).copy()
+    out = flatten_geodesic(rest, cells, init)
+    a, b, c = out[cells[:, 0]], out[cells[:, 1]], out[cells[:, 2]]
+    area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    assert (area > FOLD_MIN * 0.5 * (0.2 * 0.2)).all()  # the flat grid is its own flattening: nothing folds
+    np.testing.assert_allclose(out, init, atol=1e-6)
+
+
+def curled_flag(curl_radius: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """A 2 x 1 m flag: flat for its first metre, then rolled on a circle of `curl_radius` for the second (arc 1 m,
+    286 degrees at 0.2 m): its free end turns back over itself, so it is no height field over any plane."""
+    m = make_flag_mesh(81, 41, 2.0, 1.0)
+    s, z = m.mesh_pos[:, 0].astype(np.float64), m.mesh_pos[:, 1].astype(np.float64)
+    a = np.clip(s - 1.0, 0.0, None) / curl_radius
+    x = np.where(s <= 1.0, s, 1.0 + curl_radius * np.sin(a))
+    y = np.where(s <= 1.0, 0.0, curl_radius * (1.0 - np.cos(a)))
+    return np.stack([x, y, z], axis=1), np.asarray(m.cells, np.int64)
+
+
+def test_isomap_sheet_unrolls_a_flag_curled_over_itself() -> None:
+    verts, cells = curled_flag()
+    pts = sample_surface(verts, cells, 30000)
+    iso = sheet_from_points(pts, 200)
+    stats = check_sheet(iso, verts, cells, 200, 2.0)
+    assert stats["rmse"] < 0.01 and stats["node_max"] < 0.02, stats
+    span = iso.mesh_pos.max(axis=0) - iso.mesh_pos.min(axis=0)
+    assert sorted(span) == pytest.approx([1.0, 2.0], abs=0.06)  # the rolled-up half unrolls to its true length
+    # a height field over the best-fit plane averages the curl's layers: several times the error
+    plane = sheet_from_points(pts, 200, parameterization="plane")
+    cover = attach(verts, plane.rest_pos, plane.cells)
+    plane_rmse = float(attached_rmse(plane.rest_pos[None], plane.cells, cover, verts[None])[0])
+    assert plane_rmse > 4.0 * stats["rmse"], (plane_rmse, stats)
 
 
 def test_sheet_from_a_two_sided_shell_finds_the_mid_surface() -> None:
@@ -263,6 +368,7 @@ def test_bad_sheet_input_is_a_clods_error() -> None:
         (dict(num_nodes=2), "num_nodes"),
         (dict(num_nodes=50.5), "num_nodes"),
         (dict(radius=-1.0), "radius"),
+        (dict(parameterization="conformal"), "parameterization"),
     ]:
         args = {"points": pts, "num_nodes": 50} | kwargs
         with pytest.raises(ClodsError) as exc:

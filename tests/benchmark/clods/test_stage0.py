@@ -92,6 +92,8 @@ def test_bad_input_is_one_clear_error():
         Stage0Config(iterations=0).validate()
     with pytest.raises(ClodsError, match=r"task_config.initial_mesh.backend"):
         Stage0Config(backend="vulkan").validate()
+    with pytest.raises(ClodsError, match=r"task_config.initial_mesh.sheet"):
+        Stage0Config(sheet="conformal").validate()
 
 
 def test_the_pinned_edge_is_the_side_that_moves_least():
