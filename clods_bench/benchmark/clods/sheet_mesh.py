@@ -273,12 +273,18 @@ def _local_fit(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: floa
     return out
 
 
+WELL_POSED = 0.1
+"""`_positions`: relative singular value below which a node's local affine fit counts as degenerate."""
+
+
 def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
     """3D node positions over an isomap (u, v): the plane method's height fit, made local. Per node, the points
     within `radius` (else its 12 nearest) give a weighted affine map (u, v) -> xyz, the tangent plane there; points
     further than 3 robust deviations from it along its normal are dropped and the map refitted; the node sits on the
     map plus a robust quadratic height along the normal, clamped to the kept points' heights. A boundary node thus
-    extrapolates along the tangent plane only, never along the normal."""
+    extrapolates along the tangent plane only, never along the normal. Where the neighbours are nearly collinear in
+    (u, v) (singular values of the scaled design below WELL_POSED of the largest: a thin strip of points at the rim)
+    or the fit lands further than `radius` from every neighbour, the node takes their Gaussian-weighted mean."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(uv)
@@ -296,7 +302,7 @@ def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: fl
         for _ in range(2):  # the tangent plane, then again without the points far off it
             lin = np.column_stack([np.ones(int(keep.sum())), s[keep]])
             sw = np.sqrt(w[keep])[:, None]
-            coef, _, rank, _ = np.linalg.lstsq(lin * sw, q[keep] * sw, rcond=None)
+            coef, _, rank, _ = np.linalg.lstsq(lin * sw, q[keep] * sw, rcond=WELL_POSED)
             if rank < 3:
                 coef = None
                 break
@@ -318,6 +324,8 @@ def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: fl
         c, _, rank, _ = np.linalg.lstsq(A * np.sqrt(wk)[:, None], y * np.sqrt(wk), rcond=None)
         h = float(np.clip(c[0], y.min(), y.max())) if rank == A.shape[1] else float(np.median(y))
         out[i] = coef[0] + h * normal
+        if np.min(np.linalg.norm(q[keep] - out[i], axis=1)) > radius:  # extrapolated off its neighbours: among them
+            out[i] = np.sum(w[:, None] * q, axis=0) / np.sum(w)
     return out
 
 

@@ -311,6 +311,20 @@ def test_flatten_geodesic_unfolds_a_dragged_layout() -> None:
     np.testing.assert_allclose(out, init, atol=1e-6)
 
 
+def test_a_node_beside_a_thin_strip_of_points_stays_among_them() -> None:
+    """A node whose only neighbours form a strip 1 mm wide in (u, v) (a sliver at the rim of noisy fused points):
+    an affine fit across the strip is all noise, and extrapolated 15 cm off it would put the node metres away (seen
+    at ci: 183 m). It must stay within the fit radius of its neighbours."""
+    from clods_bench.benchmark.clods.sheet_mesh import _positions
+
+    rng = np.random.default_rng(4)
+    uv = np.column_stack([rng.uniform(0.0, 0.001, 60), rng.uniform(-0.1, 0.1, 60)])
+    xyz = np.column_stack([uv, np.zeros(60)]) + rng.normal(scale=0.01, size=(60, 3))
+    node = np.array([[0.15, 0.0]])
+    out = _positions(uv, xyz, node, 0.23)
+    assert np.linalg.norm(xyz - out[0], axis=1).min() < 0.23
+
+
 def curled_flag(curl_radius: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """A 2 x 1 m flag: flat for its first metre, then rolled on a circle of `curl_radius` for the second (arc 1 m,
     286 degrees at 0.2 m): its free end turns back over itself, so it is no height field over any plane."""
