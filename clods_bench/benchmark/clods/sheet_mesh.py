@@ -17,10 +17,12 @@ learned cloth simulator needs one open manifold sheet with a chosen number of no
    where two kept cells touch only at a corner (a node joining two fans is not manifold); the mask's edge is a
    staircase, so boundary nodes further than the point spacing from every point are pulled onto the points'
    boundary (by at most one cell, never thinning a triangle below 15 % of its area);
-3. each node's position from the points within `radius` of it in (u, v): per coordinate (x, y, z for isomap, the
-   height h for the plane) a weighted least-squares quadratic (linear, then the median, when few points) after
-   dropping points further than 3 robust deviations from the local median, clamped to the kept values' range (no
-   wild extrapolation at the boundary): the mid-surface of a two-sided shell, with no curvature bias;
+3. each node's position from the points within `radius` of it in (u, v). "plane": its height h, a weighted
+   least-squares quadratic (linear, then the median, when few points) after dropping points further than 3 robust
+   deviations from the local median, clamped to the kept heights' range (no wild extrapolation at the boundary).
+   "isomap": the same fit made local (`_positions`): a weighted affine map (u, v) -> xyz gives the tangent plane at
+   the node, and the clamped quadratic height is taken along that plane's normal. Either way the node lands on the
+   mid-surface of a two-sided shell, with no curvature bias;
 4. kept cells split along alternating diagonals (like `make_flag_mesh`), counter-clockwise in (u, v);
 5. `rest_pos` = the 3D nodes; `mesh_pos` = a geodesic-preserving flattening: the 2D layout whose edge lengths
    best match the 3D rest edges (nonlinear least squares started from the (u, v) grid, so it stays a valid
@@ -238,9 +240,8 @@ def _node_mask(occ: np.ndarray) -> np.ndarray:
     return nodes
 
 
-def _local_fit(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
-    """The height `h` of the points at each node: robust local quadratic / linear fit / median of the points near it
-    in (u, v) (see the module docstring)."""
+def _heights(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float) -> np.ndarray:
+    """Height at each node: robust local quadratic / linear fit / median of the points near it (see the module docstring)."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(uv)
@@ -506,11 +507,11 @@ def sheet_from_points(
     if parameterization == "isomap":
         rest = _positions(uv, p, grid_uv, r)
     else:
-        heights = _local_fit(uv, h, grid_uv, r)
+        heights = _heights(uv, h, grid_uv, r)
         rest = centre + grid_uv[:, :1] * axes[0] + grid_uv[:, 1:] * axes[1] + heights[:, None] * axes[2]
 
     mesh_pos = flatten_geodesic(rest, cells, grid_uv - grid_uv.min(axis=0))
-    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout (very noisy heights): keep the plane's
+    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout despite the hinge: keep the grid's (u, v)
         mesh_pos = grid_uv - grid_uv.min(axis=0)
     mesh_pos -= mesh_pos.min(axis=0)
     mesh = ClothMesh(cells.astype(np.int32), mesh_pos.astype(np.float32), np.full(keep.size, NORMAL, np.int32), rest)
