@@ -325,6 +325,23 @@ def test_a_node_beside_a_thin_strip_of_points_stays_among_them() -> None:
     assert np.linalg.norm(xyz - out[0], axis=1).min() < 0.23
 
 
+def test_isomap_and_plane_sheets_agree_on_a_flat_sheet(flag_run: dict) -> None:
+    """On a flag that does not turn over, the geodesic layout is turned onto the best-fit plane: the two sheets face
+    the same way (the cells' winding gives the same normals) and lie along the same axes in mesh space."""
+    x0, cells = flag_run["frames"][0], flag_run["mesh"].cells
+    pts = sample_surface(x0, cells, 20000)
+    iso, plane = (sheet_from_points(pts, 128, parameterization=p) for p in ("isomap", "plane"))
+
+    def mean_normal(m: ClothMesh) -> np.ndarray:
+        t = m.rest_pos[m.cells]
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).sum(axis=0)
+        return n / np.linalg.norm(n)
+
+    assert float(mean_normal(iso) @ mean_normal(plane)) > 0.95
+    span_iso, span_plane = np.ptp(iso.mesh_pos, axis=0), np.ptp(plane.mesh_pos, axis=0)
+    np.testing.assert_allclose(span_iso, span_plane, rtol=0.1)  # u along the flag's length in both
+
+
 def curled_flag(curl_radius: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """A 2 x 1 m flag: flat for its first metre, then rolled on a circle of `curl_radius` for the second (arc 1 m,
     286 degrees at 0.2 m): its free end turns back over itself, so it is no height field over any plane."""
