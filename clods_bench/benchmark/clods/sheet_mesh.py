@@ -259,19 +259,21 @@ def _heights(uv: np.ndarray, h: np.ndarray, nodes_uv: np.ndarray, radius: float)
         d = uv[idx[keep]] - nodes_uv[i]
         y = hh[keep]
         w = np.exp(-2.0 * np.sum(d**2, axis=1) / radius**2)
-        s = d / radius  # conditioned columns
-        if y.size >= 12:
-            A = np.column_stack([np.ones_like(y), s[:, 0], s[:, 1], s[:, 0] ** 2, s[:, 0] * s[:, 1], s[:, 1] ** 2])
-        elif y.size >= 4:
-            A = np.column_stack([np.ones_like(y), s[:, 0], s[:, 1]])
-        else:
-            out[i] = med
-            continue
-        sw = np.sqrt(w)
-        coef, _, rank, _ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
-        # clamped to the neighbours' range: a one-sided neighbourhood (a boundary node) must not extrapolate wildly
-        out[i] = np.clip(coef[0], y.min(), y.max()) if rank == A.shape[1] else np.median(y)
+        out[i] = _fit_at_node(d / radius, y, w) if y.size >= 4 else med
     return out
+
+
+def _fit_at_node(s: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
+    """Value at s = 0 of a weighted least-squares quadratic in the scaled offsets `s` (K,2) (linear below 12 points),
+    clamped to the range of `y`: a one-sided neighbourhood (a boundary node) must not extrapolate wildly; the median of
+    `y` when the design is rank-deficient. Needs at least 4 points."""
+    cols = [np.ones_like(y), s[:, 0], s[:, 1]]
+    if y.size >= 12:
+        cols += [s[:, 0] ** 2, s[:, 0] * s[:, 1], s[:, 1] ** 2]
+    A = np.column_stack(cols)
+    sw = np.sqrt(w)
+    coef, _, rank, _ = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)
+    return float(np.clip(coef[0], y.min(), y.max())) if rank == A.shape[1] else float(np.median(y))
 
 
 WELL_POSED = 0.1
@@ -319,12 +321,7 @@ def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: fl
         if coef is None:  # too few or degenerate points: their weighted mean
             out[i] = np.sum(w[:, None] * q, axis=0) / np.sum(w)
             continue
-        y, sk, wk = height[keep], s[keep], w[keep]
-        quad = np.column_stack([np.ones_like(y), sk[:, 0], sk[:, 1], sk[:, 0] ** 2, sk[:, 0] * sk[:, 1], sk[:, 1] ** 2])
-        A = quad if y.size >= 12 else quad[:, :3]
-        c, _, rank, _ = np.linalg.lstsq(A * np.sqrt(wk)[:, None], y * np.sqrt(wk), rcond=None)
-        h = float(np.clip(c[0], y.min(), y.max())) if rank == A.shape[1] else float(np.median(y))
-        out[i] = coef[0] + h * normal
+        out[i] = coef[0] + _fit_at_node(s[keep], height[keep], w[keep]) * normal
         if np.min(np.linalg.norm(q[keep] - out[i], axis=1)) > radius:  # extrapolated off its neighbours: among them
             out[i] = np.sum(w[:, None] * q, axis=0) / np.sum(w)
     return out
