@@ -375,6 +375,8 @@ def _triangulate(occ: np.ndarray, nx: int) -> np.ndarray:
 
 FOLD_MIN = 0.1
 """`flatten_geodesic` keeps every triangle's signed area above this fraction of its 3D area (a hinge residual)."""
+FLATTEN_MAX_EVALUATIONS = 5000
+"""Residual evaluations of the flattening's least squares at most (about 3 s for 128 nodes)."""
 FOLD_WEIGHT = 10.0
 """Weight of that hinge against the relative edge-length residuals."""
 
@@ -426,7 +428,10 @@ def flatten_geodesic(rest: np.ndarray, cells: np.ndarray, init: np.ndarray) -> n
 
     n_v = rest.shape[0]
     residual, jac = flatten_problem(rest, cells)
-    sol = least_squares(residual, init.ravel(), jac=jac, method="trf", tr_solver="lsmr", x_scale="jac", xtol=1e-10, ftol=1e-12)
+    # tolerances 1e-8: a refined (doubly curved) sheet crawls to 1e-10 over ~25,000 evaluations (20-35 s at ci) to a
+    # cost equal to 6 digits; max_nfev bounds the time where the fold hinge's kink slows the trust region
+    sol = least_squares(residual, init.ravel(), jac=jac, method="trf", tr_solver="lsmr", x_scale="jac", xtol=1e-8, ftol=1e-8,
+                        max_nfev=FLATTEN_MAX_EVALUATIONS)  # fmt: skip
     m = sol.x.reshape(n_v, 2)
     # rigid alignment (rotation, no reflection) onto the start, so the layout keeps the grid's orientation
     mc, ic = m - m.mean(axis=0), init - init.mean(axis=0)
@@ -507,13 +512,26 @@ def sheet_from_points(
         heights = _heights(uv, h, grid_uv, r)
         rest = centre + grid_uv[:, :1] * axes[0] + grid_uv[:, 1:] * axes[1] + heights[:, None] * axes[2]
 
-    mesh_pos = flatten_geodesic(rest, cells, grid_uv - grid_uv.min(axis=0))
-    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout despite the hinge: keep the grid's (u, v)
-        mesh_pos = grid_uv - grid_uv.min(axis=0)
+    return _sheet(rest, cells, grid_uv - grid_uv.min(axis=0), "sheet_from_points")
+
+
+def _sheet(rest: np.ndarray, cells: np.ndarray, layout: np.ndarray, where: str) -> ClothMesh:
+    """The validated sheet of nodes `rest` whose `mesh_pos` flattens their edge lengths, started from `layout`."""
+    mesh_pos = flatten_geodesic(rest, cells, layout)
+    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout despite the hinge: keep the start's (u, v)
+        mesh_pos = np.array(layout, dtype=np.float64)
     mesh_pos -= mesh_pos.min(axis=0)
-    mesh = ClothMesh(cells.astype(np.int32), mesh_pos.astype(np.float32), np.full(keep.size, NORMAL, np.int32), rest)
-    validate_cloth_mesh(mesh, "sheet_from_points", has_handles=False)
+    mesh = ClothMesh(cells.astype(np.int32), mesh_pos.astype(np.float32), np.full(rest.shape[0], NORMAL, np.int32), rest)
+    validate_cloth_mesh(mesh, where, has_handles=False)
     return mesh
+
+
+def with_rest_positions(mesh: ClothMesh, rest: np.ndarray) -> ClothMesh:
+    """The same sheet (cells, no handles) at new node positions `rest` (V,3), `mesh_pos` re-flattened from them."""
+    rest = np.asarray(rest, np.float64)
+    if rest.shape != (mesh.num_nodes, 3):
+        raise ClodsError(f"positions of shape {rest.shape}, expected ({mesh.num_nodes}, 3)", where="with_rest_positions")
+    return _sheet(rest, np.asarray(mesh.cells, np.int64), np.asarray(mesh.mesh_pos, np.float64), "with_rest_positions")
 
 
 def handles_from_tracks(tracks: np.ndarray, tol: float) -> np.ndarray:
