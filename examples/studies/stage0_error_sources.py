@@ -2,7 +2,8 @@
 
 For frame 0 of each training trajectory, seen by the training cameras (as `run initial_mesh` does), prints the
 attached RMSE (% of the cloth's size) of the sheet (isomap / plane parameterisation, `sheet_mesh`) built from
-  1. the fitted surfels' median-depth maps (stage 0 as it runs, Stage0Config defaults, seed 0),
+  1. the fitted surfels' median-depth maps (stage 0 as it runs, Stage0Config defaults, seed 0), and that isomap
+     sheet after its refinement against the images (`sheet_refine`, the default step of stage 0),
   2. perfect depth maps (the true mesh rasterised into the same views), with the RMSE of the fused points to the
      true surface beside it (what the TSDF gives the sheet step),
   3. 20,000 points sampled on the true surface (no views at all: the sheet step's own floor),
@@ -25,6 +26,7 @@ from scipy.spatial import cKDTree
 from clods_bench.benchmark.builders import data_splits
 from clods_bench.benchmark.clods import stage0 as S
 from clods_bench.benchmark.clods.sheet_mesh import _frame, sheet_from_points
+from clods_bench.benchmark.clods.sheet_refine import refine_sheet
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
 from clods_bench.benchmark.config import load_config
 from clods_bench.benchmark.cross_topology import attach
@@ -66,7 +68,7 @@ def main(preset: str) -> None:
     cams = [rig[v] for v in splits.train_views]
     opts = S.Stage0Config()
     print(f"preset {preset}: trajectories {list(splits.train)}, views {list(splits.train_views)}")
-    print("traj | surfels % | perfect depth % (fused points to truth, m) | true points % | max signed cos   (% as isomap / plane sheet)")
+    print("traj | refined % | surfels % | perfect depth % (fused points to truth, m) | true points % | max signed cos   (% as isomap / plane sheet)")
     for i in splits.train:
         truth = store.load_trajectory(i)
         gt = truth.world_pos[0].astype(np.float64)
@@ -90,6 +92,9 @@ def main(preset: str) -> None:
         surf = np.where((alpha > 0.5) & (depth > 0) & masks, depth, np.inf)
         voxel = 0.5 * cell
         e_surf = sheet_error(fused_points(surf, cams, voxel), gt, truth.num_nodes)
+        sheet = sheet_from_points(fused_points(surf, cams, voxel), truth.num_nodes)
+        refined, _ = refine_sheet(sheet.rest_pos, sheet.cells, img, masks, cams, opts.refine_options())
+        e_refined = float(np.sqrt(np.mean(attach(gt, refined, sheet.cells).distance ** 2)))
         true_depth = np.stack([render_depth(gt, cells, c) for c in cams])
         perfect = np.where(np.isfinite(true_depth) & masks, true_depth, np.inf)
         pts = fused_points(perfect, cams, voxel)
@@ -103,7 +108,7 @@ def main(preset: str) -> None:
         cos = (n / np.linalg.norm(n, axis=1, keepdims=True)) @ axes[2]
         cos *= -1.0 if cos.mean() > 0 else 1.0  # sign so that the plane's normal side is negative on average
         pct = lambda e: f"{100 * e[0] / size:.2f} / {100 * e[1] / size:.2f}"  # noqa: E731
-        print(f"{i} | {pct(e_surf)} (fit {fit_s:.0f} s) | {pct(e_perfect)} ({on_truth:.4f}) | {pct(e_true)} | {cos.max():+.2f}",
+        print(f"{i} | {100 * e_refined / size:.2f} | {pct(e_surf)} (fit {fit_s:.0f} s) | {pct(e_perfect)} ({on_truth:.4f}) | {pct(e_true)} | {cos.max():+.2f}",
               flush=True)  # fmt: skip
 
 

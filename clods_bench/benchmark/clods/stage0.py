@@ -60,17 +60,18 @@ class Stage0Config:
     averaged). At ci, 2.69 % against 2.98 % of the cloth's size over the 4 training videos (README)."""
     refine_iterations: int = 150
     """Adam iterations of the sheet's refinement against the frame-0 images (`sheet_refine`: silhouettes and
-    multi-view photo-consistency); 0 keeps the sheet as fused. At ci it takes the sheet from 2.7 % to 1.6 % (README)."""
+    multi-view photo-consistency); 0 keeps the sheet as fused. At ci it takes the sheet from 2.7 % to 1.8 % (README)."""
     refine_lr: float = 0.01
     """Adam step of the refinement (metres)."""
     refine_silhouette_weight: float = 1.0
     """Weight of the silhouette term (squared pixels)."""
     refine_photo_weight: float = 10.0
     """Weight of the photo-consistency term (colour variance across the views that see a point; colours in [0, 1])."""
-    refine_edge_weight: float = 0.1
+    refine_edge_weight: float = 1.0
     """Weight of the edge lengths' tie to the fused sheet's (relative to the mean edge length, squared)."""
-    refine_laplacian_weight: float = 0.1
-    """Weight of the Laplacian's tie to the fused sheet's (relative to the mean edge length, squared)."""
+    refine_laplacian_weight: float = 10.0
+    """Weight of the Laplacian's tie to the fused sheet's (relative to the mean edge length, squared): it keeps the
+    triangles' shapes (at 0.1 the nodes slid along the cloth into slivers, README)."""
     refine_blur: float = 0.5
     """Gaussian blur (pixels) of the images the photo-consistency term samples."""
     refine_visibility: float = 0.4

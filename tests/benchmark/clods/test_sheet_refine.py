@@ -97,10 +97,23 @@ def _rmse(truth: np.ndarray, rest: np.ndarray, cells: np.ndarray) -> float:
     return float(np.sqrt(np.mean(attach(truth, rest, cells).distance ** 2)))
 
 
+def _smallest_angles(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(F,) smallest interior angle (degrees) of each triangle."""
+    tri = x[cells]
+    out = []
+    for k in range(3):
+        u, v = tri[:, (k + 1) % 3] - tri[:, k], tri[:, (k + 2) % 3] - tri[:, k]
+        cos = (u * v).sum(1) / np.linalg.norm(u, axis=1) / np.linalg.norm(v, axis=1)
+        out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.min(out, axis=0)
+
+
 def test_a_displaced_sheet_is_pulled_back_onto_the_cloth():
     """The bent 1 x 0.5 m flag seen by 6 views of 48 px; the sheet starts about 4 cm off (a 12 cm bulge towards the
-    cameras and a 5 % shrink): refinement brings the true nodes' RMSE to the sheet under 2 cm (measured 0.0408 ->
-    0.0116 m). Started from the truth it stays within 1.5 cm (measured 1.0 cm: sub-pixel, a pixel is about 3 cm)."""
+    cameras and a 5 % shrink): refinement halves the true nodes' RMSE to the sheet (measured 0.0408 -> 0.0198 m) and
+    keeps the triangles' shapes (smallest angle 37.3 degrees before, 38.2 after; with the edge and Laplacian weights
+    at 0.1 the error fell to 0.0116 m but the nodes slid into slivers of 2.5 degrees). Started from the truth it stays
+    within 1.5 cm (measured 0.9 cm: sub-pixel, a pixel is about 3 cm here)."""
     flag, x, cams, img, masks = _bent_flag_views()
     cells = np.asarray(flag.cells)
     bulge = 0.12 * np.sin(np.pi * flag.rest_pos[:, 0]) * np.sin(np.pi * flag.rest_pos[:, 2] / 0.5)
@@ -108,7 +121,8 @@ def test_a_displaced_sheet_is_pulled_back_onto_the_cloth():
     before = _rmse(x, start, cells)
     rest, stats = refine_sheet(start, cells, img, masks, cams, RefineOptions())
     after = _rmse(x, rest, cells)
-    assert before > 0.035 and after < 0.02, (before, after)
+    assert before > 0.035 and after < 0.6 * before, (before, after)
+    assert _smallest_angles(rest, cells).min() > 0.8 * _smallest_angles(start, cells).min()
     assert stats["stage0_refine_silhouette_end"] < stats["stage0_refine_silhouette_start"]
     assert stats["stage0_refine_photo_end"] < stats["stage0_refine_photo_start"]
     still, _ = refine_sheet(x, cells, img, masks, cams, RefineOptions())

@@ -67,7 +67,7 @@ def _gsplat_or_skip(backend: str) -> None:
 @pytest.mark.parametrize("backend", ["cpu", "gsplat"])
 def test_a_bent_flag_is_reconstructed_from_its_rendered_views(backend: str):
     """A 1 x 0.5 m flag bent into a gentle arc, 6 views of 48 px: the sheet's distance to the true nodes is a few
-    per cent of the cloth's size (measured on the CPU backend: 1.0 %, 1.6 % without the sheet's refinement; 4 %
+    per cent of the cloth's size (measured on the CPU backend: 1.1 %, 1.6 % without the sheet's refinement; 4 %
     allowed) and the node count is close to the one asked; the same with gsplat's 2DGS kernels on a GPU."""
     _gsplat_or_skip(backend)
     flag = make_flag_mesh(9, 5, 1.0, 0.5)
