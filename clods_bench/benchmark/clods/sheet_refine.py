@@ -154,7 +154,8 @@ def _refine(
         dist = torch.tensor(distance_transform_edt(~mask), dtype=torch.float64)[None]
         rows, cols = np.nonzero(mask)
         pixels = torch.tensor(np.stack([cols + 0.5, rows + 0.5], axis=1), dtype=torch.float64)
-        blurred = np.stack([gaussian_filter(np.asarray(image[..., c], np.float64), opts.blur) for c in range(3)]) if opts.blur > 0 else np.moveaxis(np.asarray(image, np.float64), -1, 0)
+        planes = np.moveaxis(np.asarray(image, np.float64), -1, 0)  # (3, H, W)
+        blurred = np.stack([gaussian_filter(p, opts.blur) for p in planes]) if opts.blur > 0 else planes
         views.append((dist, pixels, torch.tensor(blurred)))
 
     def losses(x: torch.Tensor, visible: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
