@@ -60,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--meshes", choices=("obj", "ply", "none"), default="none", help="nerf: also write the meshes per frame")
     p.add_argument("--out", type=Path, required=True)
     p.set_defaults(func=cmd_data_export)
+    p = dsub.add_parser("export-meshes", help="write the meshes a run saved (seed_N/*.npz: initial, extracted, rollout) as OBJ/PLY sequences")
+    p.add_argument("sample", type=Path, help="a run's mesh sample, e.g. runs/cdg/<label>/<id>/seed_0/extraction_meshes.npz")
+    p.add_argument("--format", choices=("obj", "ply"), default="obj")
+    p.add_argument("--out", type=Path, required=True, help="one folder per sequence (and truth/) is written here")
+    p.set_defaults(func=cmd_data_export_meshes)
     p = dsub.add_parser("import-video", help="a dataset from your own multi-view captures (image folders or videos + transforms.json)")
     p.add_argument("transforms", type=Path, nargs="+", help="one transforms.json per capture (each becomes one trajectory)")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write (run on it with --set data.path=DIR)")
@@ -253,6 +258,15 @@ def cmd_data_export(args: argparse.Namespace) -> int:
         out = args.out if not args.traj or len(args.traj) == 1 else args.out / f"traj_{traj:04d}"
         total += len(export_sequence(store.load_trajectory(traj), out, args.format))
     console.print(f"wrote {total} {args.format.upper()} files to {args.out}")
+    return 0
+
+
+def cmd_data_export_meshes(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.mesh_export import export_mesh_sample
+
+    written = export_mesh_sample(args.sample, args.out, args.format)
+    for name, paths in written.items():
+        console.print(f"{name}: {len(paths)} {args.format.upper()} files in {paths[0].parent if paths else args.out}")
     return 0
 
 
