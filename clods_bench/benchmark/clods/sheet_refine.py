@@ -131,6 +131,7 @@ def refine_sheet(
 def _refine(
     rest: np.ndarray, cells: np.ndarray, images: np.ndarray, masks: np.ndarray, cameras: Sequence[Camera], opts: RefineOptions
 ) -> tuple[np.ndarray, dict[str, Any]]:
+    """`refine_sheet` on the calling thread count."""
     t0 = time.perf_counter()
     cells = np.asarray(cells, np.int64)
     x0 = torch.tensor(np.asarray(rest, np.float64))
@@ -193,7 +194,7 @@ def _refine(
     out = x.detach()
     if not torch.isfinite(out).all():
         raise ClodsError("the refined sheet has non-finite node positions", where="stage 0 refinement",
-                         hint="set task_config.clods.stage0.refine_iterations=0 to keep the unrefined sheet")  # fmt: skip
+                         hint="refine_iterations=0 (under task_config.initial_mesh or task_config.clods.stage0) keeps the unrefined sheet")  # fmt: skip
     with torch.no_grad():
         end = [float(v) for v in losses(out, visible_at(out))]
     stats = {
