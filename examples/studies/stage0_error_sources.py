@@ -32,6 +32,7 @@ from clods_bench.benchmark.config import load_config
 from clods_bench.benchmark.cross_topology import attach
 from clods_bench.datasets.rasterizer import render_depth
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import ClothMesh
 from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
 
@@ -44,13 +45,13 @@ def sample_surface(verts: np.ndarray, cells: np.ndarray, n: int, seed: int = 0) 
     return np.einsum("nkx,nk->nx", tri[f], rng.dirichlet(np.ones(3), n))
 
 
-def sheet_error(points: np.ndarray, gt: np.ndarray, num_nodes: int) -> tuple[float, float]:
-    """Attached RMSE (m) of the true nodes to the sheet made from `points`: (isomap sheet, plane sheet)."""
-    out = []
+def sheet_error(points: np.ndarray, gt: np.ndarray, num_nodes: int) -> tuple[float, float, ClothMesh]:
+    """Attached RMSE (m) of the true nodes to the sheet made from `points`: (isomap sheet, plane sheet, the isomap sheet)."""
+    out, meshes = [], []
     for par in ("isomap", "plane"):
-        mesh = sheet_from_points(points, num_nodes, parameterization=par)
-        out.append(float(np.sqrt(np.mean(attach(gt, mesh.rest_pos, mesh.cells).distance ** 2))))
-    return out[0], out[1]
+        meshes.append(sheet_from_points(points, num_nodes, parameterization=par))
+        out.append(float(np.sqrt(np.mean(attach(gt, meshes[-1].rest_pos, meshes[-1].cells).distance ** 2))))
+    return out[0], out[1], meshes[0]
 
 
 def fused_points(depth: np.ndarray, cameras, voxel: float) -> np.ndarray:
@@ -91,17 +92,16 @@ def main(preset: str) -> None:
         fit_s = time.perf_counter() - t0
         surf = np.where((alpha > 0.5) & (depth > 0) & masks, depth, np.inf)
         voxel = 0.5 * cell
-        e_surf = sheet_error(fused_points(surf, cams, voxel), gt, truth.num_nodes)
-        sheet = sheet_from_points(fused_points(surf, cams, voxel), truth.num_nodes)
+        *e_surf, sheet = sheet_error(fused_points(surf, cams, voxel), gt, truth.num_nodes)
         refined, _ = refine_sheet(sheet.rest_pos, sheet.cells, img, masks, cams, opts.refine_options())
         e_refined = float(np.sqrt(np.mean(attach(gt, refined, sheet.cells).distance ** 2)))
         true_depth = np.stack([render_depth(gt, cells, c) for c in cams])
         perfect = np.where(np.isfinite(true_depth) & masks, true_depth, np.inf)
         pts = fused_points(perfect, cams, voxel)
-        e_perfect = sheet_error(pts, gt, truth.num_nodes)
+        e_perfect = sheet_error(pts, gt, truth.num_nodes)[:2]
         dense = sample_surface(gt, cells, 20000)
         on_truth = float(np.sqrt(np.mean(cKDTree(dense).query(pts)[0] ** 2)))
-        e_true = sheet_error(dense, gt, truth.num_nodes)
+        e_true = sheet_error(dense, gt, truth.num_nodes)[:2]
         _, axes = _frame(dense)
         tri = gt[cells]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.rasterizer import render_depth
+from clods_bench.datasets.types import edges_from_cells
 from clods_bench.errors import ClodsError
 
 VISIBILITY_EVERY = 10
@@ -109,11 +110,6 @@ def _visibility(points: np.ndarray, verts: np.ndarray, cells: np.ndarray, masks:
     return out
 
 
-def _edges(cells: np.ndarray) -> np.ndarray:
-    e = np.concatenate([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
 def refine_sheet(
     rest: np.ndarray, cells: np.ndarray, images: np.ndarray, masks: np.ndarray, cameras: Sequence[Camera], opts: RefineOptions
 ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -139,7 +135,7 @@ def _refine(
         raise ClodsError(f"sheet positions of shape {tuple(x0.shape)} with non-finite values or not (V,3)", where="stage 0 refinement")
     cells_t = torch.as_tensor(cells)
     bary = torch.tensor(face_samples(opts.subdivisions))
-    edges = torch.as_tensor(_edges(cells))
+    edges = torch.as_tensor(edges_from_cells(cells))
     len0 = (x0[edges[:, 0]] - x0[edges[:, 1]]).norm(dim=1)
     scale = float(len0.mean())
     ones = torch.ones(edges.shape[0], dtype=torch.float64)
