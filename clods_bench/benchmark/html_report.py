@@ -151,7 +151,9 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                 png = out_dir / f"extraction_egt_{scene}_{preset}_{len(written)}.png".replace(" ", "_")
                 plot_curves({rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}, None, f"mesh extraction error per frame ({scene}, preset {preset})", png)
                 written.append(png)
-                parts.append(media_html(png, "E-GT: RMSE of the extracted against the true mesh per frame, mean over seeds"))
+                what = ("E-GT: RMSE of the extracted against the true mesh per frame" if any("egt_avg" in rec["metrics"] for _, rec in items)
+                        else "PSNR of the extracted meshes re-rendered in the held-out cameras per frame (a dataset without meshes)")  # fmt: skip
+                parts.append(media_html(png, f"{what}, mean over seeds"))
             for rdir, rec in items:
                 for path in _seed_media(rdir, media_seeds):
                     rel = path.relative_to(rdir)

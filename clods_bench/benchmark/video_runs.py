@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -19,6 +20,7 @@ from clods_bench.benchmark.image_metrics import LpipsMetric, image_scores
 from clods_bench.benchmark.interfaces import FitContext, VideoPredictor
 from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -99,12 +101,21 @@ def pipeline_module() -> Any:
     return pipeline
 
 
+@dataclass(frozen=True)
+class Recovered:
+    """What the CloDS pipeline recovered from one training video: its meshes over frames 0..interp_steps (the video's
+    own topology and handles when the initial mesh was reconstructed) and the stage-1 renderer they were tracked with."""
+
+    mesh: Trajectory
+    renderer: Any
+
+
 def train_simulator(
     ctx: TaskContext, sim_training: str, train_ids: list[int] | None = None, where: str = "task_config.dvc.sim_training"
-) -> tuple[Any, dict[str, float], str, dict[int, np.ndarray]]:
+) -> tuple[Any, dict[str, float], str, dict[int, Recovered]]:
     """The simulator for the rollouts, from the training videos (CloDS stages 1-3) or the ground-truth meshes of
     `train_ids` (default: every training trajectory, or the first half with `train_subset`); with the video-trained
-    one also the meshes stage 2 recovered per training trajectory (frames 0..interp_steps)."""
+    one also what the pipeline recovered per training trajectory (frames 0..interp_steps)."""
     cfg = ctx.config
     splits = split_spec(ctx)
     if train_ids is None:
@@ -113,7 +124,7 @@ def train_simulator(
     have_video = pipeline is not None and hasattr(pipeline, "train_from_video")
     mode = ("video" if have_video else "mesh") if sim_training == "auto" else sim_training
     t0 = time.perf_counter()
-    extracted: dict[int, np.ndarray] = {}
+    extracted: dict[int, Recovered] = {}
     if mode == "video":
         if not have_video:
             raise ClodsError("the CloDS pipeline (clods_bench.benchmark.clods.pipeline.train_from_video) is not available",
@@ -121,10 +132,12 @@ def train_simulator(
         if hasattr(pipeline, "run_pipeline"):
             result = pipeline.run_pipeline(ctx, train_ids)
             sim, stats = result.simulator, result.stats
-            extracted = {int(i): m.world_pos for i, m in zip(train_ids, result.meshes)}
-            if result.meshes and result.truth:  # the report's picture of what stage 2 recovered
-                save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", result.truth[0].cells, {"extracted (stage 2)": result.meshes[0].world_pos},
-                                 truth=result.truth[0].world_pos, title=f"meshes extracted from training video {train_ids[0]}, seed {ctx.seed}")  # fmt: skip
+            extracted = {int(i): Recovered(m, r) for i, m, r in zip(train_ids, result.meshes, result.renderers)}
+            if result.meshes:  # the report's picture of what stage 2 recovered, beside the truth where it has the same topology
+                first = result.meshes[0]
+                same = bool(result.truth) and result.truth[0].world_pos.shape == first.world_pos.shape
+                save_mesh_sample(ctx.work_dir / "extraction_meshes.npz", first.cells, {"extracted (stage 2)": first.world_pos},
+                                 truth=result.truth[0].world_pos if same else None, title=f"meshes extracted from training video {train_ids[0]}, seed {ctx.seed}")  # fmt: skip
         else:
             sim, stats = pipeline.train_from_video(ctx, train_ids)
     else:

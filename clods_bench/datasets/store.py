@@ -264,13 +264,19 @@ class DatasetStore:
         if not self.has_meshes:
             raise ClodsError(f"the dataset has no meshes (imported from video), and {what} needs ground-truth meshes",
                              where=str(self.root),
-                             hint="without meshes run nvs with a per-frame renderer (gs3d) or dvc with a video predictor "
-                                  "(copylast, simvp, ...); or re-import with --meshes DIR")  # fmt: skip
+                             hint="without meshes run nvs with a per-frame renderer (gs3d), dvc with a video predictor "
+                                  "(copylast, simvp, ...), or CloDS from video alone (initial_mesh, extract, dvc --sim --renderer with "
+                                  "task_config.clods.initial_mesh=reconstructed); or re-import with --meshes DIR")  # fmt: skip
 
     def dt(self, index: int) -> float:
         """Seconds between frames of trajectory `index`."""
         entry = self._entry(index)
         return float(entry["dt"]) if "dt" in entry else self.load_trajectory(index).dt
+
+    def meta(self, index: int) -> dict[str, Any]:
+        """The recorded metadata of trajectory `index` (scene, seed, source, ...), with or without meshes."""
+        entry = self._entry(index)
+        return dict(entry["meta"]) if "meta" in entry else dict(self.load_trajectory(index).meta)
 
     @property
     def scene(self) -> str:

@@ -108,18 +108,157 @@ def test_hull_box_contains_the_true_mesh(tiny_root: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("task", "fields", "what"),
+    ("task", "fields", "extra", "what"),
     [
-        ("cdg", {"sim": "constvel"}, "task cdg"),
-        ("stability", {"sim": "constvel"}, "task stability"),
-        ("extract", {"renderer": "games"}, "task extract"),
-        ("nvs", {"renderer": "smgs"}, "renderer 'smgs'"),
-        ("nvs", {"renderer": "games"}, "renderer 'games'"),
-        ("dvc", {"sim": "frozen", "renderer": "games"}, "dvc with a simulator and renderer"),
+        ("cdg", {"sim": "constvel"}, [], "task cdg"),
+        ("stability", {"sim": "constvel"}, [], "task stability"),
+        ("nvs", {"renderer": "smgs"}, [], "renderer 'smgs'"),
+        ("nvs", {"renderer": "games"}, [], "renderer 'games'"),
+        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3"], "dvc_multi with a simulator and renderer"),
+        # the CloDS stages on video alone need the initial mesh from the images, and its node count
+        ("extract", {"renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
+        ("dvc", {"sim": "frozen", "renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
+        ("dvc", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc.sim_training=mesh"], "sim_training=mesh trains the simulator on ground-truth meshes"),
+        ("extract", {"renderer": "games"}, ["task_config.clods.initial_mesh=reconstructed"], "no meshes to take the node count"),
+        ("initial_mesh", {}, [], "no meshes to take the node count"),
     ],
 )
-def test_tasks_that_need_meshes_refuse_in_one_line(imported, tiny_root: Path, tmp_path: Path, task, fields, what) -> None:
-    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", f"data.path={imported['plain']}", task=task, **fields)
-    with pytest.raises(ClodsError, match="the dataset has no meshes") as info:
+def test_tasks_that_need_meshes_refuse_in_one_line(imported, tiny_root: Path, tmp_path: Path, task, fields, extra, what) -> None:
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", f"data.path={imported['plain']}", *extra, task=task, **fields)
+    with pytest.raises(ClodsError, match="has no meshes") as info:
         run_task(cfg, default_registry())
     assert what in info.value.message and "\n" not in info.value.message
+
+
+# CloDS on video alone, shrunk to seconds: stage 0 (the mesh from frame 0's images), stage 1, stage 2, stage 3
+VIDEO_ONLY = ["task_config.clods.initial_mesh=reconstructed", "task_config.clods.stage0.iterations=30",
+              "task_config.clods.stage0.num_surfels=300", "task_config.clods.stage0.refine_iterations=10",
+              "task_config.clods.stage0.num_nodes=24", "renderer_config.games.iterations=10",
+              "renderer_config.games.gaussians_per_face=1", "task_config.clods.iterations=2", "task_config.clods.min_iterations=2"]  # fmt: skip
+
+
+def _recovered(runs: Path, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, object]:
+    """(frames, cells, mesh_pos, renderer) of one video from the pipeline's caches alone: stage 2's tracked frames, the
+    stage-0 mesh they start from (its rest shape is their frame 0), the stage-1 renderer fitted on that mesh."""
+    import torch
+
+    (tracked,) = (runs / "clods_cache").glob(f"*/traj_{index:04d}.npz")
+    with np.load(tracked) as z:
+        frames = z["world_pos"].astype(np.float64)
+    for f in (runs / "clods_cache").glob("stage0-*.npz"):
+        with np.load(f) as z:
+            if z["rest_pos"].shape == frames[0].shape and np.abs(z["rest_pos"] - frames[0]).max() < 1e-6:
+                cells, mesh_pos = z["cells"], z["mesh_pos"]
+                break
+    else:
+        raise AssertionError(f"no stage-0 mesh starts video {index}")
+    renderers = [torch.load(f, weights_only=False) for f in (runs / "clods_cache").glob("stage1-*.pt")]
+    (renderer,) = [r for r in renderers if np.array_equal(np.asarray(r.cells), cells)]
+    return frames, cells, mesh_pos, renderer
+
+
+def test_dvc_from_video_alone_equals_the_meshed_run_and_its_images(imported, tiny_root: Path, tmp_path: Path) -> None:
+    """`dvc --sim --renderer` with a reconstructed initial mesh reads nothing of the truth: the dataset without meshes
+    gives the original's numbers. With the frozen simulator each video's own mesh stays at its recovered frame 1 with
+    the handles found in its motion held at frame 0: the scores are recomputed here from the pipeline's caches."""
+    import torch
+
+    from clods_bench.benchmark.clods.reconstructed import detect_handles
+    from clods_bench.benchmark.image_metrics import psnr
+    from clods_bench.benchmark.mesh_pictures import load_mesh_sample
+
+    fields = {"task": "dvc", "sim": "frozen", "renderer": "games"}
+    extra = [*VIDEO_ONLY, "task_config.dvc.lpips=false", "task_config.dvc.sim_training=video"]
+    meshed = _metrics(tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'a'}", **fields))
+    cfg = tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'b'}", f"data.path={imported['plain']}", **fields)
+    rdir = run_task(cfg, default_registry())
+    rec = json.loads((rdir / RECORD_FILE).read_text())
+    alone = {k: v["mean"] for k, v in rec["metrics"].items()}
+    assert alone.keys() == meshed.keys() and all(alone[k] == pytest.approx(meshed[k], rel=1e-6) for k in alone), (alone, meshed)
+    assert rec["per_seed"]["0"]["extra"]["mesh"] == "reconstructed (per video)"
+    store = DatasetStore.open(imported["plain"])
+    cam = store.cameras()[2]  # the held-out camera
+    future, every = [], []
+    for i in (0, 1):
+        frames, cells, mesh_pos, renderer = _recovered(tmp_path / "b", i)
+        pinned = np.zeros(len(mesh_pos), bool)
+        pinned[detect_handles(frames, mesh_pos, cells)] = True
+        video = np.asarray(store.frames(i)[:, [2]], np.float64)[:, 0] / 255.0
+        for t in range(1, 12):
+            mesh = frames[1].copy()
+            if t >= 2:
+                mesh[pinned] = frames[0][pinned]
+            with torch.no_grad():
+                img = renderer.render(torch.from_numpy(mesh.astype(np.float32)), [cam]).numpy()[0]
+            every.append(psnr(img, video[t]))
+            if t in (9, 10, 11):
+                future.append(psnr(img, video[t]))
+        if i == 0:  # the predicted cloth on its own mesh, for the report and `data export-meshes`
+            saved_cells, saved, truth, _, _ = load_mesh_sample(rdir / "seed_0" / "rollout_meshes.npz")
+            assert truth is None and np.array_equal(saved_cells, cells)
+            np.testing.assert_allclose(next(iter(saved.values()))[5], np.where(pinned[:, None], frames[0], frames[1]), atol=1e-6)
+    assert alone["psnr"] == pytest.approx(np.mean(future), rel=1e-5)
+    assert alone["all/psnr"] == pytest.approx(np.mean(every), rel=1e-5)
+
+
+def test_extract_from_video_alone_is_scored_in_images(imported, tiny_root: Path, tmp_path: Path) -> None:
+    """Stages 0-2 on a dataset without meshes: the extracted meshes rendered by their stage-1 renderer against the
+    held-out camera's frames (recomputed here from the caches) and the training cameras'; E-GT where meshes exist."""
+    import torch
+
+    from clods_bench.benchmark.image_metrics import psnr
+
+    extra = [*VIDEO_ONLY, "task_config.extract.lpips=false"]
+    meshed = _metrics(tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'a'}", task="extract", renderer="games"))
+    alone = _metrics(tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'b'}", f"data.path={imported['plain']}", task="extract", renderer="games"))
+    assert {"egt_avg", "edge_strain_max"} <= meshed.keys() and "psnr" not in meshed
+    assert set(alone) == {"psnr", "ssim", "rmse", "train/psnr", "train/ssim", "train/rmse", "edge_strain_max"}
+    assert alone["edge_strain_max"] == pytest.approx(meshed["edge_strain_max"], rel=1e-6)  # the same extraction
+    store = DatasetStore.open(imported["plain"])
+    held = []
+    for i in (0, 1):
+        frames, cells, _, renderer = _recovered(tmp_path / 'b', i)
+        video = np.asarray(store.frames(i)[:, [2]], np.float64)[:, 0] / 255.0
+        for t in range(1, len(frames)):
+            with torch.no_grad():
+                held.append(psnr(renderer.render(torch.from_numpy(frames[t].astype(np.float32)), [store.cameras()[2]]).numpy()[0], video[t]))
+    assert alone["psnr"] == pytest.approx(np.mean(held), rel=1e-5)
+    assert alone["train/psnr"] > alone["psnr"]  # stage 2 fitted the training cameras
+    from clods_bench.benchmark.tables import write_tables
+
+    md = next(p for p in write_tables(tmp_path / "b", tmp_path / "tables", task="extract") if p.suffix == ".md").read_text()
+    assert "held-out PSNR (dB)" in md and f"{alone['psnr']:.4f}" in md and "E-GT" not in md
+
+
+def test_initial_mesh_from_video_alone_is_scored_by_its_held_out_silhouette(imported, tiny_root: Path, tmp_path: Path) -> None:
+    im = ["task_config.initial_mesh.iterations=30", "task_config.initial_mesh.num_surfels=300",
+          "task_config.initial_mesh.refine_iterations=10", "task_config.initial_mesh.num_nodes=24", f"runs_dir={tmp_path}"]  # fmt: skip
+    meshed = _metrics(tiny_config(tiny_root, *im, task="initial_mesh"))
+    alone = _metrics(tiny_config(tiny_root, *im, f"data.path={imported['plain']}", task="initial_mesh"))
+    assert "attached_rmse" in meshed and set(alone) == {"heldout_iou", "nodes"} and alone["nodes"] == meshed["nodes"] == 24
+    assert 0.0 < alone["heldout_iou"] <= 1.0
+
+
+def test_silhouette_iou_is_one_for_the_true_mesh_and_drops_as_it_moves(tiny_root: Path) -> None:
+    """The held-out silhouette score against the rendered frames of a 48 px rig: the true mesh covers the cloth's
+    pixels (up to the anti-aliased rim), a mesh shifted by a fifth of its size much less, one moved away not at all."""
+    from clods_bench.benchmark.tasks.initial_mesh import silhouette_iou
+    from clods_bench.datasets.cameras import camera_rig
+    from clods_bench.datasets.rasterizer import RasterSettings, render_views
+    from clods_bench.datasets.types import ClothMesh
+
+    traj = DatasetStore.open(tiny_config(tiny_root).data.dataset_dir()).load_trajectory(0)
+    x0 = traj.world_pos[0].astype(np.float64)
+    size = float(np.ptp(x0, axis=0).max())
+    cams = camera_rig(3, x0.mean(axis=0), 3.0 * size, 48, 48, fov_deg=40.0)
+    uv = (traj.mesh_pos - traj.mesh_pos.min(0)) / np.ptp(traj.mesh_pos, axis=0).max()
+    images = render_views(x0, traj.cells, uv.astype(np.float32), np.zeros((4, 4, 3), np.float32), cams, RasterSettings())
+    images = np.clip(np.rint(images * 255.0), 0, 255).astype(np.uint8)
+
+    def iou(shift: float) -> float:
+        pos = x0 + np.array([shift * size, 0.0, 0.0])
+        return silhouette_iou(ClothMesh(traj.cells, traj.mesh_pos, traj.node_type, pos), images, cams, 0.08)
+
+    assert iou(0.0) > 0.9
+    assert iou(0.2) < iou(0.0) - 0.1
+    assert iou(5.0) == 0.0

@@ -172,17 +172,17 @@ def extract_trajectory(
     return ext
 
 
-def stage2_stats(extracted: Sequence[Extracted], egt: np.ndarray, cached: int) -> dict[str, float]:
-    """Stage 2's cost (per frame after frame 0) and extraction error (E-GT (B, frames)) of a row's trajectories."""
+def stage2_stats(extracted: Sequence[Extracted], egt: np.ndarray | None, cached: int) -> dict[str, float]:
+    """Stage 2's cost (per frame after frame 0) and extraction error (E-GT (B, frames); None without true meshes)."""
     seconds = np.concatenate([e.seconds[1:] for e in extracted])
     iters = np.concatenate([e.iterations[1:] for e in extracted])
-    return {
+    stats = {
         "stage2_seconds": float(seconds.sum()),
         "stage2_ms_per_frame": 1000.0 * float(seconds.mean()),
         "stage2_iterations_per_frame": float(iters.mean()),
         "stage2_frames": float(seconds.size),
         "stage2_cached_trajectories": float(cached),
-        "egt_rmse": float(egt[:, 1:].mean()),
-        "egt_end": float(egt[:, -1].mean()),
-        "egt_initial": float(egt[:, 0].mean()),
     }
+    if egt is not None:
+        stats.update({"egt_rmse": float(egt[:, 1:].mean()), "egt_end": float(egt[:, -1].mean()), "egt_initial": float(egt[:, 0].mean())})
+    return stats

@@ -44,7 +44,8 @@ class PipelineResult:
     egt_curve: list[float] = field(default_factory=list)
     egt_per_trajectory: dict[str, float] = field(default_factory=dict)
     meshes: list[Trajectory] = field(default_factory=list)  # the extracted meshes stage 3 learned from
-    truth: list[Trajectory] = field(default_factory=list)  # the true meshes of the same frames
+    truth: list[Trajectory] = field(default_factory=list)  # the true meshes of the same frames (none without meshes)
+    renderers: list[Any] = field(default_factory=list)  # per extracted video, the stage-1 renderer fitted on its frame 0
 
 
 def video_train_ids(ctx: TaskContext) -> list[int]:
@@ -85,10 +86,11 @@ class Extraction:
     """Stages 1-2 of one row: extracted meshes (with the true ones), statistics, per-frame E-GT and the cache key."""
 
     meshes: list[Trajectory]  # extracted, frames 0..interp_steps, one per training video
-    truth: list[Trajectory]  # the ground truth over the same frames
+    truth: list[Trajectory]  # the ground truth over the same frames; empty for a dataset without meshes
     stats: dict[str, float]
-    egt: np.ndarray  # (B, frames) RMSE of extracted vs true mesh per frame (E-GT, the appendix figure)
+    egt: np.ndarray | None  # (B, frames) RMSE of extracted vs true mesh per frame (E-GT, the appendix figure); None without truth
     key: str  # extraction cache key (stage 3 is keyed by it)
+    renderers: list[Any] = field(default_factory=list)  # per video, the stage-1 renderer its meshes were tracked with
 
 
 def extraction_identity(
@@ -121,14 +123,19 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
     cams = [store.cameras()[v] for v in views]
     frames = splits.interp_steps + 1
     seed = extraction_seed(ctx, opts)
-    gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids]
+    gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids] if store.has_meshes else []
     videos = [store.frames(i)[:frames, views] for i in train_ids]  # decodes only these cameras' first frames
     if opts.initial_mesh == "reconstructed":  # stage 0 per video: its own topology, stage 1 per video
         from clods_bench.benchmark.clods.reconstructed import extract_reconstructed
 
         identity = extraction_identity("per-video", opts, cfg.data.identity(), frames, views)
-        meshes, stats, egt, key = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed)
-        return Extraction(meshes, gts, stats, egt, key)
+        timing = [(g.dt, g.meta) for g in gts] if gts else [(store.dt(i), store.meta(i)) for i in train_ids]
+        meshes, stats, egt, key, renderers = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed, timing)
+        return Extraction(meshes, gts, stats, egt, key, renderers)
+    if not gts:
+        raise ClodsError(f"the dataset has no meshes (imported from video), and initial_mesh={opts.initial_mesh} starts stage 2 from "
+                         "the true frame-0 mesh", where="task_config.clods.initial_mesh",
+                         hint="set task_config.clods.initial_mesh=reconstructed: stage 0 builds the mesh from the frame-0 images")  # fmt: skip
     initial = np.stack([initial_mesh(g.world_pos[0], opts, seed, i) for g, i in zip(gts, train_ids)])
 
     renderer, stats, stage1_key = fit_stage1_keyed(ctx, initial, gts[0].cells, gts[0].mesh_pos, np.stack([v[0] for v in videos]), cams)
@@ -156,7 +163,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
         Trajectory(g.cells, g.mesh_pos, g.node_type, e.world_pos.astype(np.float32), g.dt, {**g.meta, "source": "clods stage 2", "cache": cache.key})
         for g, e in zip(gts, extracted)
     ]
-    return Extraction(meshes, gts, stats, egt, cache.key)
+    return Extraction(meshes, gts, stats, egt, cache.key, [renderer] * len(meshes))
 
 
 def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
@@ -172,8 +179,10 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     stats.update(sim_stats)
     parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")
     stats["cost_seconds"] = float(sum(v for v in (stats.get(k, 0.0) for k in parts) if math.isfinite(v)))  # a cache without its cost counts 0
+    if ext.egt is None:  # a dataset without meshes: no E-GT
+        return PipelineResult(sim, stats, [], {}, ext.meshes, ext.truth, ext.renderers)
     per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, ext.egt)}
-    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj, ext.meshes, ext.truth)
+    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj, ext.meshes, ext.truth, ext.renderers)
 
 
 def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequence[Trajectory]) -> dict[str, list[float]]:

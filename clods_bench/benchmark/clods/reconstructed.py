@@ -129,24 +129,31 @@ def orient_material_coords(mesh_pos: np.ndarray, handles: np.ndarray, world0: np
 
 def extract_reconstructed(
     ctx: TaskContext, opts: ClodsConfig, train_ids: Sequence[int], gts: Sequence[Trajectory], videos: Sequence[np.ndarray],
-    cams: Sequence[Camera], identity: dict[str, Any], seed: int,
-) -> tuple[list[Trajectory], dict[str, float], np.ndarray, str]:  # fmt: skip
-    """(meshes with handles, statistics, per-frame attached E-GT (B, frames), cache key) of stages 0-2 on `videos`."""
+    cams: Sequence[Camera], identity: dict[str, Any], seed: int, timing: Sequence[tuple[float, dict[str, Any]]],
+) -> tuple[list[Trajectory], dict[str, float], np.ndarray | None, str, list[Any]]:  # fmt: skip
+    """(meshes with handles, statistics, per-frame attached E-GT (B, frames), cache key, the per-video stage-1
+    renderers) of stages 0-2 on `videos`. `timing` is each video's (dt, meta); `gts` its true meshes, or empty for a
+    dataset without meshes: nothing here needs them but the E-GT (then None) and the default node count."""
     cfg = ctx.config
     s0 = stage0_config(opts, seed)
+    if not gts and s0.num_nodes is None:
+        raise ClodsError("the dataset has no meshes to take the node count of the reconstructed mesh from",
+                         where="task_config.clods.stage0.num_nodes", hint="set it, e.g. task_config.clods.stage0.num_nodes=300")  # fmt: skip
     cache = ExtractionCache(cache_root(ctx, opts), digest({**identity, "stage0": dataclasses.asdict(s0)}), identity)
     stats: dict[str, float] = {"stage0_seconds": 0.0, "stage0_cost_seconds": 0.0, "stage1_seconds": 0.0, "stage1_cost_seconds": 0.0}
-    meshes, egt, extracted, cached = [], [], [], 0
+    meshes, egt, extracted, renderers, cached = [], [], [], [], 0
     t0 = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("{task.fields[info]}"))
     with Progress(*columns, transient=True, disable=not cfg.progress) as bar:
-        for g, video, i in zip(gts, videos, train_ids):
+        for k, (video, i, (dt, meta)) in enumerate(zip(videos, train_ids, timing)):
+            g = gts[k] if gts else None
             mesh, st0 = stage0_mesh(ctx, opts, s0, i, np.asarray(video[0]), cams, s0.num_nodes or g.num_nodes)
             renderer, st1, _ = fit_stage1_keyed(ctx, mesh.rest_pos[None].astype(np.float32), mesh.cells, mesh.mesh_pos, np.asarray(video[0])[None], cams)
-            for k in ("stage0_seconds", "stage0_cost_seconds"):
-                stats[k] += st0[k]
-            for k in ("stage1_seconds", "stage1_cost_seconds"):
-                stats[k] += float(st1.get(k, 0.0)) if np.isfinite(st1.get(k, 0.0)) else 0.0
+            renderers.append(renderer)
+            for key in ("stage0_seconds", "stage0_cost_seconds"):
+                stats[key] += st0[key]
+            for key in ("stage1_seconds", "stage1_cost_seconds"):
+                stats[key] += float(st1.get(key, 0.0)) if np.isfinite(st1.get(key, 0.0)) else 0.0
             with file_lock(cache.path(i).with_suffix(".lock")):
                 cached += cache.load(i) is not None
                 ext = extract_trajectory(renderer, cams, video, mesh.rest_pos, mesh.cells, mesh.node_type, opts, cache, i, bar)
@@ -155,11 +162,12 @@ def extract_reconstructed(
             handles = detect_handles(ext.world_pos, mesh.mesh_pos, mesh.cells)
             node_type[handles] = HANDLE
             mesh_pos = orient_material_coords(mesh.mesh_pos, handles, ext.world_pos[0])
-            meta = {**g.meta, "source": "clods stages 0-2 (reconstructed initial mesh)", "cache": cache.key}
-            meshes.append(Trajectory(mesh.cells, mesh_pos, node_type, ext.world_pos.astype(np.float32), g.dt, meta))
-            att = attach(np.asarray(g.world_pos[0], np.float64), ext.world_pos[0].astype(np.float64), mesh.cells)
-            egt.append(attached_rmse(ext.world_pos, mesh.cells, att, g.world_pos))
-    curves = np.stack(egt)
+            meta = {**meta, "source": "clods stages 0-2 (reconstructed initial mesh)", "cache": cache.key}
+            meshes.append(Trajectory(mesh.cells, mesh_pos, node_type, ext.world_pos.astype(np.float32), float(dt), meta))
+            if g is not None:
+                att = attach(np.asarray(g.world_pos[0], np.float64), ext.world_pos[0].astype(np.float64), mesh.cells)
+                egt.append(attached_rmse(ext.world_pos, mesh.cells, att, g.world_pos))
+    curves = np.stack(egt) if egt else None
     stats.update(stage2_stats(extracted, curves, cached))
     stats.update({
         "stage2_wall_seconds": time.perf_counter() - t0,
@@ -169,4 +177,4 @@ def extract_reconstructed(
     stats["stage1_cost_seconds"] += stats["stage0_cost_seconds"]  # stage 0 is part of the renderer's set-up cost
     # what stage 3 learns from: the cached motion and the handles found in it (a change of `detect_handles` is a new fit)
     handles = [np.flatnonzero(m.node_type == HANDLE).tolist() for m in meshes]
-    return meshes, stats, curves, f"{cache.key}-{digest(handles)[:8]}"
+    return meshes, stats, curves, f"{cache.key}-{digest(handles)[:8]}", renderers

@@ -10,7 +10,9 @@ on frame 0 of each scored trajectory from the training cameras (stage 1), the si
 from video by the CloDS pipeline, or on ground-truth meshes: `sim_training`) rolls out from the
 initial mesh, and every frame is rendered from the scored cameras. Both rows are scored on the same
 images: the extrapolation frames of the scored views; the simulator row also reports the scores
-over every rendered frame 1..T-1 under `all/`.
+over every rendered frame 1..T-1 under `all/`. With `task_config.clods.initial_mesh=reconstructed` the simulator row
+reads nothing of the ground truth: each video is rolled out on the mesh stage 0 built from its frame-0 images and
+rendered by the renderer stage 1 fitted on it, so it also runs on a dataset without meshes (imported from video).
 """
 
 from __future__ import annotations
@@ -30,9 +32,11 @@ from clods_bench.benchmark.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.interfaces import RolloutInput, check_prediction, check_rollout
 from clods_bench.benchmark.media import write_image_grid
+from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.metrics import divergence_step
 from clods_bench.benchmark.video_runs import (
     ImageScores,
+    Recovered,
     build_predictor,
     fit_predictor,
     fit_renderer,
@@ -42,6 +46,7 @@ from clods_bench.benchmark.video_runs import (
     write_video,
 )
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -120,8 +125,6 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
     opts = dvc_options(ctx)
     splits = split_spec(ctx)
     store = DatasetStore.open(cfg.data.dataset_dir())
-    if not use_predictor:
-        store.require_meshes(f"dvc with a simulator and renderer (--sim {cfg.sim} --renderer {cfg.renderer})")
     cams = store.cameras()
     views = _views(opts, splits)
     view_cams = [cams[v] for v in views]
@@ -187,11 +190,11 @@ def _run_predictor(
     return videos, timings, {"train_videos": len(train), "context_frames": observed}
 
 
-def _rollout_input(traj: Any, opts: DvcConfig, extracted: dict[int, np.ndarray], index: int, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
+def _rollout_input(traj: Any, opts: DvcConfig, recovered: dict[int, Recovered], index: int, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
     """The rollout input of one scored trajectory and, for start='observed', the recovered meshes of frames 0..interp."""
     if opts.start == "initial":
         return RolloutInput.from_trajectory(traj, splits.num_steps), None
-    known = extracted.get(int(index))
+    known = recovered.get(int(index))
     if known is None:
         raise ClodsError(
             f"start=observed needs the meshes stage 2 recovered from trajectory {index}'s video, and there are none",
@@ -200,23 +203,70 @@ def _rollout_input(traj: Any, opts: DvcConfig, extracted: dict[int, np.ndarray],
     first = splits.interp_steps - 1  # the rollout's frames 0, 1 are the last two observed ones
     kin = traj.world_pos[first : splits.num_steps].astype(np.float32).copy()
     kin[:, traj.node_type == 0] = np.nan
-    inp = RolloutInput(traj.cells, traj.mesh_pos, traj.node_type, np.asarray(known[first : first + 2], np.float32), kin, traj.dt)
-    return inp, np.asarray(known[: splits.interp_steps + 1], np.float32)
+    world = known.mesh.world_pos
+    inp = RolloutInput(traj.cells, traj.mesh_pos, traj.node_type, np.asarray(world[first : first + 2], np.float32), kin, traj.dt)
+    return inp, np.asarray(world[: splits.interp_steps + 1], np.float32)
+
+
+def _own_rollout_input(mesh: Trajectory, opts: DvcConfig, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
+    """The rollout input on a video's own reconstructed mesh (nothing but video): it starts from the meshes stage 2
+    recovered at frames 0, 1 (start=initial) or interp-1, interp (start=observed); the handles found in the video's
+    motion hold still where they are at the rollout's first frame, as a pinned edge does."""
+    first = 0 if opts.start == "initial" else splits.interp_steps - 1
+    start = np.asarray(mesh.world_pos[first : first + 2], np.float32)
+    kin = np.full((splits.num_steps - first, mesh.num_nodes, 3), np.nan, np.float32)
+    pinned = mesh.node_type != NORMAL
+    kin[:, pinned] = start[0, pinned]
+    inp = RolloutInput(mesh.cells, mesh.mesh_pos, mesh.node_type, start, kin, mesh.dt)
+    return inp, (None if opts.start == "initial" else np.asarray(mesh.world_pos[: splits.interp_steps + 1], np.float32))
+
+
+def _own_meshes(ctx: TaskContext, store: DatasetStore, mode: str, recovered: dict[int, Recovered], traj_ids: list[int]) -> bool:
+    """Whether the rollouts run on each video's own reconstructed mesh (the simulator learned from video with
+    `task_config.clods.initial_mesh=reconstructed`, the only way on a dataset without meshes); checked."""
+    if mode != "video":
+        if not store.has_meshes:
+            raise ClodsError("sim_training=mesh trains the simulator on ground-truth meshes, and the dataset has no meshes (imported from video)",
+                             where=f"{WHERE}.sim_training", hint="use sim_training=video with task_config.clods.initial_mesh=reconstructed")  # fmt: skip
+        return False
+    from clods_bench.benchmark.clods.config import clods_config
+
+    if clods_config(ctx.config).initial_mesh != "reconstructed":
+        return False
+    missing = [i for i in traj_ids if i not in recovered]
+    if missing:
+        raise ClodsError(f"trajectories {missing} are scored, and their videos did not train the simulator, so they have no reconstructed mesh",
+                         where=f"{WHERE}.num_trajectories", hint="use train_subset=all or score fewer trajectories")  # fmt: skip
+    return True
 
 
 def _run_simulator(
     ctx: TaskContext, opts: DvcConfig, store: DatasetStore, traj_ids: list[int], views: list[int],
     view_cams: list["Camera"], future: list[int], scores: ImageScores,
 ) -> tuple[Videos, dict[str, float], dict[str, Any]]:  # fmt: skip
-    """Algorithm S2: roll the simulator out from the initial mesh, render every frame, score it."""
+    """Algorithm S2: roll the simulator out from the initial mesh, render every frame, score it.
+
+    From the ground-truth initial mesh with one renderer fitted on the scored trajectories' frame 0, or, when the
+    simulator learned from a reconstructed initial mesh, from each video's own mesh with the renderer stage 1 fitted
+    on it (then nothing of the ground truth is read, and a dataset without meshes runs too)."""
     cfg = ctx.config
     splits = split_spec(ctx)
     train_views = list(splits.train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    sim, timings, mode, extracted = train_simulator(ctx, opts.sim_training)
-    trajs = {i: store.load_trajectory(i) for i in traj_ids}
+    if opts.sim_training == "mesh":
+        _own_meshes(ctx, store, "mesh", {}, traj_ids)  # refuses before training when there are no meshes
+    sim, timings, mode, recovered = train_simulator(ctx, opts.sim_training)
+    own = _own_meshes(ctx, store, mode, recovered, traj_ids)
     t0 = time.perf_counter()
-    renderer, render_stats = fit_renderer(ctx, list(trajs.values()), np.stack([to_float(store.frames(i)[0, train_views]) for i in traj_ids]), train_cams)
+    if own:  # stage 1 was fitted per video by the pipeline: its cost is in the simulator's
+        trajs: dict[int, Any] = {i: recovered[i].mesh for i in traj_ids}
+        renderers = {i: recovered[i].renderer for i in traj_ids}
+        render_stats: dict[str, Any] = {}
+    else:
+        trajs = {i: store.load_trajectory(i) for i in traj_ids}
+        first = np.stack([to_float(store.frames(i)[0, train_views]) for i in traj_ids])
+        renderer, render_stats = fit_renderer(ctx, list(trajs.values()), first, train_cams)
+        renderers = {i: renderer for i in traj_ids}
     render_fit = time.perf_counter() - t0
     timings.update({f"render_fit/{k}": float(v) for k, v in render_stats.items()})
     render_s, rollout_s, rendered, steps = 0.0, 0.0, 0, 0
@@ -226,7 +276,7 @@ def _run_simulator(
         job = bar.add_task(f"dvc ({cfg.sim}+{cfg.renderer})", total=len(traj_ids) * (splits.num_steps - 1))
         for i, traj in trajs.items():
             clip = to_float(store.frames(i)[:, views])  # (T,V,H,W,3), the scored views only
-            inp, observed = _rollout_input(traj, opts, extracted, i, splits)
+            inp, observed = _own_rollout_input(traj, opts, splits) if own else _rollout_input(traj, opts, recovered, i, splits)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
             rollout_s += time.perf_counter() - t0
@@ -241,7 +291,7 @@ def _run_simulator(
             for t in range(1, splits.num_steps):
                 t0 = time.perf_counter()
                 with torch.no_grad():
-                    out = renderer.render(torch.from_numpy(mesh[t]), view_cams)
+                    out = renderers[i].render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)
                 img = as_images(out, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
@@ -250,6 +300,9 @@ def _run_simulator(
                 bar.advance(job)
             pred = np.stack(frames, axis=1)  # (N,T-1,H,W,3), frames 1..T-1
             videos[i] = (clip[future].transpose(1, 0, 2, 3, 4), pred[:, [t - 1 for t in future]])
+            if own and i == traj_ids[0]:  # the predicted cloth on its own mesh, for the report's pictures and export
+                save_mesh_sample(ctx.work_dir / "rollout_meshes.npz", traj.cells, {cfg.label or str(cfg.sim): mesh},
+                                 marks=[splits.interp_steps], title=f"rollout of trajectory {i}'s reconstructed mesh, seed {ctx.seed}")  # fmt: skip
     timings.update(
         {
             "fit_seconds": timings["sim_fit_seconds"] + render_fit,
@@ -260,7 +313,8 @@ def _run_simulator(
             "predict_ms_per_frame": 1000.0 * (rollout_s / max(steps, 1) / len(view_cams) + render_s / max(rendered, 1)),
         }
     )
-    return videos, timings, {"diverged": diverged, "sim_training": mode, "start": opts.start}
+    extra = {"diverged": diverged, "sim_training": mode, "start": opts.start, "mesh": "reconstructed (per video)" if own else "ground truth"}
+    return videos, timings, extra
 
 
 def _write_outputs(work: Path, opts: DvcConfig, videos: Videos, future: list[int]) -> dict[str, Any]:

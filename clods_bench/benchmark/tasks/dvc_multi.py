@@ -277,6 +277,8 @@ def _run_simulator(
     """Table 4's simulator row on both splits: simulator trained on the training trajectories, one renderer fitted
     on frame 0 of each split's trajectories, rollouts from the initial mesh rendered at the scored frames."""
     cfg = ctx.config
+    store.require_meshes("dvc_multi with a simulator and renderer (its rollouts start from the true initial meshes; on video "
+                         "alone use task dvc with task_config.clods.initial_mesh=reconstructed)")
     train_views = list(split_spec(ctx).train_views)
     train_cams = [store.cameras()[v] for v in train_views]
     sim, timings, mode, _ = train_simulator(ctx, opts.sim_training, list(split.train_ids), where=f"{WHERE}.sim_training")
