@@ -17,10 +17,10 @@ from clods_bench.benchmark.builders import build_renderer, build_simulator, fit_
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
 from clods_bench.benchmark.image_metrics import LpipsMetric, image_scores
-from clods_bench.benchmark.interfaces import FitContext, VideoPredictor
+from clods_bench.benchmark.interfaces import FitContext, RolloutInput, VideoPredictor
 from clods_bench.benchmark.mesh_pictures import save_mesh_sample
 from clods_bench.datasets.store import DatasetStore
-from clods_bench.datasets.types import Trajectory
+from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -149,6 +149,35 @@ def train_simulator(
     timings = {"sim_fit_seconds": cost, "sim_fit_wall_seconds": wall}
     timings.update({f"sim_fit/{k}": float(v) for k, v in (stats or {}).items() if isinstance(v, (int, float))})
     return sim, timings, mode, extracted
+
+
+def uses_own_meshes(ctx: TaskContext, mode: str) -> bool:
+    """Whether a simulator row rolls each video out on its own mesh: the simulator learned from video (`mode`
+    'video') with `task_config.clods.initial_mesh=reconstructed`, so nothing of the ground truth is read."""
+    if mode != "video":
+        return False
+    from clods_bench.benchmark.clods.config import clods_config
+
+    return clods_config(ctx.config).initial_mesh == "reconstructed"
+
+
+def own_rollout_input(mesh: Trajectory, first: int, stop: int) -> RolloutInput:
+    """The rollout over frames first..stop-1 of a video on its own reconstructed mesh: it starts from the meshes stage 2
+    recovered at frames `first`, `first + 1`, and the handles found in the video's motion hold still where they are
+    at `first`, as a pinned edge does."""
+    start = np.asarray(mesh.world_pos[first : first + 2], np.float32)
+    kin = np.full((stop - first, mesh.num_nodes, 3), np.nan, np.float32)
+    pinned = mesh.node_type != NORMAL
+    kin[:, pinned] = start[0, pinned]
+    return RolloutInput(mesh.cells, mesh.mesh_pos, mesh.node_type, start, kin, mesh.dt)
+
+
+def recover_videos(ctx: TaskContext, ids: list[int], frames: int) -> dict[int, Recovered]:
+    """Stages 0-2 (reconstructed initial mesh) on frames 0..frames-1 of videos the simulator did not learn from, e.g. the
+    given frames of unseen test videos: each video's own mesh with its handles, and its stage-1 renderer (cached)."""
+    pipeline = pipeline_module()
+    ext = pipeline.extract_meshes(ctx, ids, frames=frames)
+    return {int(i): Recovered(m, r) for i, m, r in zip(ids, ext.meshes, ext.renderers)}
 
 
 def fit_renderer(ctx: TaskContext, trajs: list[Any], images: np.ndarray, train_cams: list["Camera"]) -> tuple[Any, dict[str, float]]:

@@ -126,7 +126,8 @@ def test_hull_box_contains_the_true_mesh(tiny_root: Path) -> None:
         ("stability", {"sim": "constvel"}, [], "task stability"),
         ("nvs", {"renderer": "smgs"}, [], "renderer 'smgs'"),
         ("nvs", {"renderer": "games"}, [], "renderer 'games'"),
-        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3"], "dvc_multi with a simulator and renderer"),
+        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3"], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
+        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3", "task_config.dvc_multi.sim_training=mesh"], "sim_training=mesh"),
         # the CloDS stages on video alone need the initial mesh from the images, and its node count
         ("extract", {"renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
         ("dvc", {"sim": "frozen", "renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
@@ -211,6 +212,25 @@ def test_dvc_from_video_alone_equals_the_meshed_run_and_its_images(imported, tin
             np.testing.assert_allclose(next(iter(saved.values()))[5], np.where(pinned[:, None], frames[0], frames[1]), atol=1e-6)
     assert alone["psnr"] == pytest.approx(np.mean(future), rel=1e-5)
     assert alone["all/psnr"] == pytest.approx(np.mean(every), rel=1e-5)
+
+
+def test_dvc_multi_from_video_alone_equals_the_meshed_run(imported, tiny_root: Path, tmp_path: Path) -> None:
+    """The multi-trajectory row from video alone: the training videos roll out on their own meshes, each unseen
+    Generalization video on the mesh stages 0-2 recover from its 3 given frames alone; the dataset without meshes
+    gives the original's numbers, and the unseen videos' extraction used only the given frames."""
+    fields = {"task": "dvc_multi", "sim": "frozen", "renderer": "games"}
+    extra = [*VIDEO_ONLY, "task_config.dvc_multi.lpips=false", "task_config.dvc_multi.gen_context=3", "task_config.dvc_multi.sim_training=video"]
+    meshed = _metrics(tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'a'}", **fields))
+    cfg = tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'b'}", f"data.path={imported['plain']}", **fields)
+    rdir = run_task(cfg, default_registry())
+    rec = json.loads((rdir / RECORD_FILE).read_text())
+    alone = {k: v["mean"] for k, v in rec["metrics"].items()}
+    assert alone.keys() == meshed.keys() and {"extrap/psnr", "gen/psnr"} <= alone.keys()
+    assert all(alone[k] == pytest.approx(meshed[k], rel=1e-6) for k in alone), (alone, meshed)
+    assert rec["per_seed"]["0"]["extra"]["mesh"] == "reconstructed (per video)"
+    tracked = sorted((tmp_path / "b" / "clods_cache").glob("*/traj_*.npz"))
+    lengths = {p.stem: np.load(p)["world_pos"].shape[0] for p in tracked}
+    assert lengths == {"traj_0000": 9, "traj_0001": 9, "traj_0002": 3}  # training videos 0..interp, the unseen one 0..2
 
 
 def test_extract_from_video_alone_is_scored_in_images(imported, tiny_root: Path, tmp_path: Path) -> None:

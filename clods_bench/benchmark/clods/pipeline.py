@@ -106,8 +106,9 @@ def extraction_identity(
     return identity
 
 
-def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretrained | None = None) -> Extraction:
-    """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, training cameras only), cached and resumable.
+def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretrained | None = None, frames: int | None = None) -> Extraction:
+    """Stages 1-2 on the videos of `train_ids` (frames 0..interp_steps, or 0..frames-1; training cameras only), cached and
+    resumable.
 
     With start=simulator each frame starts from `pretrained`'s one-step prediction (pretrained here when not given);
     the cache key then includes that fit's identity, and the statistics its pretraining cost."""
@@ -121,7 +122,9 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
     store = DatasetStore.open(cfg.data.dataset_dir())
     views = _views(ctx, opts)
     cams = [store.cameras()[v] for v in views]
-    frames = splits.interp_steps + 1
+    frames = splits.interp_steps + 1 if frames is None else int(frames)
+    if not 2 <= frames <= splits.num_steps:
+        raise ClodsError(f"stage 2 needs 2..{splits.num_steps} frames, asked for {frames}", where="clods pipeline")
     seed = extraction_seed(ctx, opts)
     gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids] if store.has_meshes else []
     videos = [store.frames(i)[:frames, views] for i in train_ids]  # decodes only these cameras' first frames

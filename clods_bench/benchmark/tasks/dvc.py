@@ -40,13 +40,14 @@ from clods_bench.benchmark.video_runs import (
     build_predictor,
     fit_predictor,
     fit_renderer,
+    own_rollout_input,
     to_float,
     train_simulator,
+    uses_own_meshes,
     video_frames,
     write_video,
 )
 from clods_bench.datasets.store import DatasetStore
-from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -208,30 +209,13 @@ def _rollout_input(traj: Any, opts: DvcConfig, recovered: dict[int, Recovered], 
     return inp, np.asarray(world[: splits.interp_steps + 1], np.float32)
 
 
-def _own_rollout_input(mesh: Trajectory, opts: DvcConfig, splits: Any) -> tuple[RolloutInput, np.ndarray | None]:
-    """The rollout input on a video's own reconstructed mesh (nothing but video): it starts from the meshes stage 2
-    recovered at frames 0, 1 (start=initial) or interp-1, interp (start=observed); the handles found in the video's
-    motion hold still where they are at the rollout's first frame, as a pinned edge does."""
-    first = 0 if opts.start == "initial" else splits.interp_steps - 1
-    start = np.asarray(mesh.world_pos[first : first + 2], np.float32)
-    kin = np.full((splits.num_steps - first, mesh.num_nodes, 3), np.nan, np.float32)
-    pinned = mesh.node_type != NORMAL
-    kin[:, pinned] = start[0, pinned]
-    inp = RolloutInput(mesh.cells, mesh.mesh_pos, mesh.node_type, start, kin, mesh.dt)
-    return inp, (None if opts.start == "initial" else np.asarray(mesh.world_pos[: splits.interp_steps + 1], np.float32))
-
-
 def _own_meshes(ctx: TaskContext, store: DatasetStore, mode: str, recovered: dict[int, Recovered], traj_ids: list[int]) -> bool:
     """Whether the rollouts run on each video's own reconstructed mesh (the simulator learned from video with
     `task_config.clods.initial_mesh=reconstructed`, the only way on a dataset without meshes); checked."""
-    if mode != "video":
-        if not store.has_meshes:
-            raise ClodsError("sim_training=mesh trains the simulator on ground-truth meshes, and the dataset has no meshes (imported from video)",
-                             where=f"{WHERE}.sim_training", hint="use sim_training=video with task_config.clods.initial_mesh=reconstructed")  # fmt: skip
-        return False
-    from clods_bench.benchmark.clods.config import clods_config
-
-    if clods_config(ctx.config).initial_mesh != "reconstructed":
+    if mode != "video" and not store.has_meshes:
+        raise ClodsError("sim_training=mesh trains the simulator on ground-truth meshes, and the dataset has no meshes (imported from video)",
+                         where=f"{WHERE}.sim_training", hint="use sim_training=video with task_config.clods.initial_mesh=reconstructed")  # fmt: skip
+    if not uses_own_meshes(ctx, mode):
         return False
     missing = [i for i in traj_ids if i not in recovered]
     if missing:
@@ -276,7 +260,12 @@ def _run_simulator(
         job = bar.add_task(f"dvc ({cfg.sim}+{cfg.renderer})", total=len(traj_ids) * (splits.num_steps - 1))
         for i, traj in trajs.items():
             clip = to_float(store.frames(i)[:, views])  # (T,V,H,W,3), the scored views only
-            inp, observed = _own_rollout_input(traj, opts, splits) if own else _rollout_input(traj, opts, recovered, i, splits)
+            if own:
+                first = 0 if opts.start == "initial" else splits.interp_steps - 1
+                inp = own_rollout_input(traj, first, splits.num_steps)
+                observed = None if opts.start == "initial" else np.asarray(traj.world_pos[: splits.interp_steps + 1], np.float32)
+            else:
+                inp, observed = _rollout_input(traj, opts, recovered, i, splits)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
             rollout_s += time.perf_counter() - t0

@@ -14,7 +14,9 @@ The split (`multi_split`), with the data's splits:
 A simulator + renderer row (CloDS: `--sim mgn --renderer smgs`) is Table 4's DVC row applied to both splits:
 the simulator learns from the same training trajectories (the CloDS pipeline on their videos, through its
 caches), a renderer is fitted on frame 0 of each split's trajectories (stage 1), and each trajectory is rolled
-out from its initial mesh (Algorithm S2) and rendered at the scored frames. A task of its own rather than a
+out from its initial mesh (Algorithm S2) and rendered at the scored frames. With
+`task_config.clods.initial_mesh=reconstructed` each video runs on its own mesh instead (an unseen one's from stages
+0-2 on its given frames), so the row also runs on a dataset without meshes. A task of its own rather than a
 `dvc` option: its records hold two column groups, so `tables` and `reproduce` pick the layout by task, and
 `dvc` records (Table 4) never mix with these.
 """
@@ -35,7 +37,19 @@ from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, l
 from clods_bench.benchmark.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
 from clods_bench.benchmark.metrics import divergence_step
 from clods_bench.benchmark.builders import as_images, split_spec
-from clods_bench.benchmark.video_runs import ImageScores, build_predictor, fit_predictor, fit_renderer, to_float, train_simulator, video_frames, write_video
+from clods_bench.benchmark.video_runs import (
+    ImageScores,
+    build_predictor,
+    fit_predictor,
+    fit_renderer,
+    own_rollout_input,
+    recover_videos,
+    to_float,
+    train_simulator,
+    uses_own_meshes,
+    video_frames,
+    write_video,
+)
 from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
@@ -275,28 +289,46 @@ def _run_simulator(
     view_cams: list["Camera"], scores: dict[str, ImageScores],
 ) -> tuple[Videos, dict[str, float], dict[str, Any]]:  # fmt: skip
     """Table 4's simulator row on both splits: simulator trained on the training trajectories, one renderer fitted
-    on frame 0 of each split's trajectories, rollouts from the initial mesh rendered at the scored frames."""
+    on frame 0 of each split's trajectories, rollouts from the initial mesh rendered at the scored frames.
+
+    With a simulator learned from a reconstructed initial mesh every video runs on its own mesh and renderer instead:
+    the training videos' from the pipeline, each unseen Generalization video's from stages 0-2 on its given frames
+    0..gen_context-1 alone (its handles found in their motion). Then nothing of the ground truth is read."""
     cfg = ctx.config
-    store.require_meshes("dvc_multi with a simulator and renderer (its rollouts start from the true initial meshes; on video "
-                         "alone use task dvc with task_config.clods.initial_mesh=reconstructed)")
     train_views = list(split_spec(ctx).train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    sim, timings, mode, _ = train_simulator(ctx, opts.sim_training, list(split.train_ids), where=f"{WHERE}.sim_training")
+    if opts.sim_training == "mesh":
+        store.require_meshes(f"{WHERE}.sim_training=mesh (it trains on ground-truth meshes)")
+    sim, timings, mode, recovered = train_simulator(ctx, opts.sim_training, list(split.train_ids), where=f"{WHERE}.sim_training")
+    own = uses_own_meshes(ctx, mode)
+    if not own:
+        store.require_meshes("dvc_multi with a simulator and renderer from a true initial mesh (on video alone set "
+                             "task_config.clods.initial_mesh=reconstructed)")  # fmt: skip
     render_fit = render_s = rollout_s = 0.0
     rendered = steps = 0
     diverged: dict[str, int] = {}
     videos: Videos = {}
     for s in SPLITS:
-        ids, _, frames = split.scored(s)
-        trajs = {i: store.load_trajectory(i) for i in ids}
+        ids, given, frames = split.scored(s)
         t0 = time.perf_counter()
-        first = np.stack([to_float(store.frames(i)[0, train_views]) for i in ids])
-        renderer, stats = fit_renderer(ctx, list(trajs.values()), first, train_cams)
+        if own:  # stage 1 per video, inside the pipeline: the training videos' cost is in the simulator's
+            scene = recovered if s == "extrap" else recover_videos(ctx, list(ids), given)
+            missing = [i for i in ids if i not in scene]
+            if missing:
+                raise ClodsError(f"trajectories {missing} are scored, and their videos did not train the simulator", where=f"{WHERE}.num_train_trajectories")
+            meshes: dict[int, Any] = {i: scene[i].mesh for i in ids}
+            renderers = {i: scene[i].renderer for i in ids}
+        else:
+            meshes = {i: store.load_trajectory(i) for i in ids}
+            first = np.stack([to_float(store.frames(i)[0, train_views]) for i in ids])
+            renderer, stats = fit_renderer(ctx, list(meshes.values()), first, train_cams)
+            timings.update({f"render_fit/{s}/{k}": float(v) for k, v in stats.items()})
+            renderers = {i: renderer for i in ids}
         render_fit += time.perf_counter() - t0
-        timings.update({f"render_fit/{s}/{k}": float(v) for k, v in stats.items()})
-        for i, traj in trajs.items():
+        for i, traj in meshes.items():
             clip = _read(store, i, frames[-1] + 1, views)
-            inp = RolloutInput.from_trajectory(traj, frames[-1] + 1)  # Algorithm S2: from the initial mesh, as far as scored
+            # Algorithm S2: from the initial mesh, as far as scored
+            inp = own_rollout_input(traj, 0, frames[-1] + 1) if own else RolloutInput.from_trajectory(traj, frames[-1] + 1)
             t0 = time.perf_counter()
             mesh = check_rollout(sim.rollout(inp), inp, str(cfg.sim))
             rollout_s += time.perf_counter() - t0
@@ -309,7 +341,7 @@ def _run_simulator(
             for t in frames:
                 t0 = time.perf_counter()
                 with torch.no_grad():
-                    img = renderer.render(torch.from_numpy(mesh[t]), view_cams)
+                    img = renderers[i].render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)
                 img = as_images(img, (len(view_cams), *clip.shape[2:]), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
@@ -325,7 +357,7 @@ def _run_simulator(
             "predict_ms_per_frame": 1000.0 * (rollout_s / max(steps, 1) / len(view_cams) + render_s / max(rendered, 1)),
         }
     )
-    return videos, timings, {"diverged": diverged, "sim_training": mode}
+    return videos, timings, {"diverged": diverged, "sim_training": mode, "mesh": "reconstructed (per video)" if own else "ground truth"}
 
 
 def _write_videos(work: Path, opts: DvcMultiConfig, videos: Videos) -> list[str]:
