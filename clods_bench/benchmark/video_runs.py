@@ -1,6 +1,7 @@
 """What the video-prediction tasks (DVC, Table 4, and its multi-trajectory table) share: building and fitting a
-predictor, the simulator + renderer row's simulator training and stage-1 renderer fit, per-image scores, and the
-truth-above-prediction videos. Below the tasks, so neither task imports the other."""
+predictor, the simulator + renderer row's simulator training and stage-1 renderer fit, the rollouts on each video's
+own reconstructed mesh of a row from video alone, per-image scores, and the truth-above-prediction videos. Below the
+tasks, so neither task imports the other."""
 
 from __future__ import annotations
 
