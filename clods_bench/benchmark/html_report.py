@@ -149,10 +149,15 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                 from clods_bench.benchmark.report import mean_curves, plot_curves
 
                 png = out_dir / f"extraction_egt_{scene}_{preset}_{len(written)}.png".replace(" ", "_")
-                plot_curves({rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}, None, f"mesh extraction error per frame ({scene}, preset {preset})", png)
+                egt = any("egt_avg" in rec["metrics"] for _, rec in items)
+                if egt:  # E-GT curves start at the given frame 0
+                    plot_curves({rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}, None, f"mesh extraction error per frame ({scene}, preset {preset})", png)
+                    what = "E-GT: RMSE of the extracted against the true mesh per frame"
+                else:  # a dataset without meshes: PSNR of the re-rendered extraction, from frame 1
+                    plot_curves({rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}, None, f"mesh extraction re-rendered ({scene}, preset {preset})",
+                                png, ylabel="PSNR (dB), held-out cameras", first_frame=1)  # fmt: skip
+                    what = "PSNR of the extracted meshes re-rendered in the held-out cameras per frame (a dataset without meshes)"
                 written.append(png)
-                what = ("E-GT: RMSE of the extracted against the true mesh per frame" if any("egt_avg" in rec["metrics"] for _, rec in items)
-                        else "PSNR of the extracted meshes re-rendered in the held-out cameras per frame (a dataset without meshes)")  # fmt: skip
                 parts.append(media_html(png, f"{what}, mean over seeds"))
             for rdir, rec in items:
                 for path in _seed_media(rdir, media_seeds):

@@ -114,7 +114,10 @@ def plot_mesh_sample(sample: Path, path: Path, frames: Sequence[int] | None = No
     if errors:
         fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=fig.axes, shrink=0.6, label="node error (m)")
     if title:
-        fig.suptitle(title, fontsize=10)
+        import textwrap
+
+        width = fig.get_size_inches()[0]
+        fig.suptitle(textwrap.fill(title, max(20, int(width * 13))), fontsize=10)  # ~13 characters per inch at 10 pt: one column fits
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=80, format="png")
     plt.close(fig)

@@ -125,8 +125,10 @@ def plot_error_vs_time(points: pd.DataFrame, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, title: str, path: Path) -> None:
-    """RMSE per frame, one line per label, one panel per group; the interpolation/extrapolation boundary dashed."""
+def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, title: str, path: Path, ylabel: str = "RMSE (m)",
+                first_frame: int = 0) -> None:  # fmt: skip
+    """Error per frame, one line per label, one panel per group; the interpolation/extrapolation boundary dashed.
+    A curve's values start at `first_frame`; frames 0 and 1 (given to a rollout) are left out; log scale for RMSE."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -139,17 +141,18 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, ti
         for label, per_group in sorted(curves.items()):
             if group not in per_group:
                 continue
-            c = per_group[group]
-            frames = np.arange(2, len(c))
-            ax.plot(frames, c[2:], label=label)
-            positive &= bool(np.all(c[2:][np.isfinite(c[2:])] > 0))
+            c = np.asarray(per_group[group], np.float64)
+            frames = np.arange(first_frame, first_frame + len(c))
+            keep = frames >= 2
+            ax.plot(frames[keep], c[keep], label=label)
+            positive &= bool(np.all(c[keep][np.isfinite(c[keep])] > 0))
         if interp is not None:
             ax.axvline(interp, color="gray", ls="--", lw=1)
-        if positive:
+        if positive and ylabel.startswith("RMSE"):
             ax.set_yscale("log")
         ax.set_title(group)
         ax.set_xlabel("frame")
-        ax.set_ylabel("RMSE (m)")
+        ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title)

@@ -260,6 +260,11 @@ def test_extract_from_video_alone_is_scored_in_images(imported, tiny_root: Path,
 
     md = next(p for p in write_tables(tmp_path / "b", tmp_path / "tables", task="extract") if p.suffix == ".md").read_text()
     assert "held-out PSNR (dB)" in md and f"{alone['psnr']:.4f}" in md and "E-GT" not in md
+    from clods_bench.benchmark.html_report import build_html_report
+
+    written = build_html_report(tmp_path / "b", tmp_path / "report")
+    html = (tmp_path / "report" / "index.html").read_text()
+    assert "re-rendered in the held-out cameras" in html and any(p.name.startswith("extraction_egt") for p in written)
 
 
 def test_initial_mesh_from_video_alone_is_scored_by_its_held_out_silhouette(imported, tiny_root: Path, tmp_path: Path) -> None:
