@@ -162,6 +162,20 @@ def uses_own_meshes(ctx: TaskContext, mode: str) -> bool:
     return clods_config(ctx.config).initial_mesh == "reconstructed"
 
 
+def own_meshes(ctx: TaskContext, store: DatasetStore, mode: str, recovered: dict[int, Recovered], ids: Sequence[int], where: str) -> bool:
+    """`uses_own_meshes`, checked: a row from a true initial mesh refuses a dataset without meshes, and a row on own
+    meshes refuses scored videos the pipeline recovered nothing from (`where` names the option to change)."""
+    if not uses_own_meshes(ctx, mode):
+        store.require_meshes(f"a simulator row from a true initial mesh (sim_training={mode}; on video alone set "
+                             "task_config.clods.initial_mesh=reconstructed)")  # fmt: skip
+        return False
+    missing = [int(i) for i in ids if int(i) not in recovered]
+    if missing:
+        raise ClodsError(f"trajectories {missing} are scored, and their videos did not train the simulator, so they have no reconstructed mesh",
+                         where=where, hint="use train_subset=all or score fewer trajectories")  # fmt: skip
+    return True
+
+
 def own_rollout_input(mesh: Trajectory, first: int, stop: int) -> RolloutInput:
     """The rollout over frames first..stop-1 of a video on its own reconstructed mesh: it starts from the meshes stage 2
     recovered at frames `first`, `first + 1`, and the handles found in the video's motion hold still where they are

@@ -127,11 +127,11 @@ def test_hull_box_contains_the_true_mesh(tiny_root: Path) -> None:
         ("nvs", {"renderer": "smgs"}, [], "renderer 'smgs'"),
         ("nvs", {"renderer": "games"}, [], "renderer 'games'"),
         ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3"], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
-        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3", "task_config.dvc_multi.sim_training=mesh"], "sim_training=mesh"),
+        ("dvc_multi", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc_multi.gen_context=3", "task_config.dvc_multi.sim_training=mesh"], "task_config.dvc_multi.sim_training=mesh (it trains the simulator on ground-truth meshes)"),
         # the CloDS stages on video alone need the initial mesh from the images, and its node count
         ("extract", {"renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
         ("dvc", {"sim": "frozen", "renderer": "games"}, [], "initial_mesh=truth starts stage 2 from the true frame-0 mesh"),
-        ("dvc", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc.sim_training=mesh"], "sim_training=mesh trains the simulator on ground-truth meshes"),
+        ("dvc", {"sim": "frozen", "renderer": "games"}, ["task_config.dvc.sim_training=mesh"], "task_config.dvc.sim_training=mesh (it trains the simulator on ground-truth meshes)"),
         ("extract", {"renderer": "games"}, ["task_config.clods.initial_mesh=reconstructed"], "no meshes to take the node count"),
         ("initial_mesh", {}, [], "no meshes to take the node count"),
     ],

@@ -132,8 +132,8 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
         from clods_bench.benchmark.clods.reconstructed import extract_reconstructed
 
         identity = extraction_identity("per-video", opts, cfg.data.identity(), frames, views)
-        timing = [(g.dt, g.meta) for g in gts] if gts else [(store.dt(i), store.meta(i)) for i in train_ids]
-        meshes, stats, egt, key, renderers = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed, timing)
+        dt_meta = [(g.dt, g.meta) for g in gts] if gts else [(store.dt(i), store.meta(i)) for i in train_ids]
+        meshes, stats, egt, key, renderers = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed, dt_meta)
         return Extraction(meshes, gts, stats, egt, key, renderers)
     if not gts:
         raise ClodsError(f"the dataset has no meshes (imported from video), and initial_mesh={opts.initial_mesh} starts stage 2 from "

@@ -129,10 +129,10 @@ def orient_material_coords(mesh_pos: np.ndarray, handles: np.ndarray, world0: np
 
 def extract_reconstructed(
     ctx: TaskContext, opts: ClodsConfig, train_ids: Sequence[int], gts: Sequence[Trajectory], videos: Sequence[np.ndarray],
-    cams: Sequence[Camera], identity: dict[str, Any], seed: int, timing: Sequence[tuple[float, dict[str, Any]]],
+    cams: Sequence[Camera], identity: dict[str, Any], seed: int, dt_meta: Sequence[tuple[float, dict[str, Any]]],
 ) -> tuple[list[Trajectory], dict[str, float], np.ndarray | None, str, list[Any]]:  # fmt: skip
     """(meshes with handles, statistics, per-frame attached E-GT (B, frames), cache key, the per-video stage-1
-    renderers) of stages 0-2 on `videos`. `timing` is each video's (dt, meta); `gts` its true meshes, or empty for a
+    renderers) of stages 0-2 on `videos`. `dt_meta` is each video's (dt, meta); `gts` its true meshes, or empty for a
     dataset without meshes: nothing here needs them but the E-GT (then None) and the default node count."""
     cfg = ctx.config
     s0 = stage0_config(opts, seed)
@@ -145,7 +145,7 @@ def extract_reconstructed(
     t0 = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("{task.fields[info]}"))
     with Progress(*columns, transient=True, disable=not cfg.progress) as bar:
-        for k, (video, i, (dt, meta)) in enumerate(zip(videos, train_ids, timing)):
+        for k, (video, i, (dt, meta)) in enumerate(zip(videos, train_ids, dt_meta)):
             g = gts[k] if gts else None
             mesh, st0 = stage0_mesh(ctx, opts, s0, i, np.asarray(video[0]), cams, s0.num_nodes or g.num_nodes)
             renderer, st1, _ = fit_stage1_keyed(ctx, mesh.rest_pos[None].astype(np.float32), mesh.cells, mesh.mesh_pos, np.asarray(video[0])[None], cams)

@@ -40,10 +40,10 @@ from clods_bench.benchmark.video_runs import (
     build_predictor,
     fit_predictor,
     fit_renderer,
+    own_meshes,
     own_rollout_input,
     to_float,
     train_simulator,
-    uses_own_meshes,
     video_frames,
     write_video,
 )
@@ -209,21 +209,6 @@ def _rollout_input(traj: Any, opts: DvcConfig, recovered: dict[int, Recovered], 
     return inp, np.asarray(world[: splits.interp_steps + 1], np.float32)
 
 
-def _own_meshes(ctx: TaskContext, store: DatasetStore, mode: str, recovered: dict[int, Recovered], traj_ids: list[int]) -> bool:
-    """Whether the rollouts run on each video's own reconstructed mesh (the simulator learned from video with
-    `task_config.clods.initial_mesh=reconstructed`, the only way on a dataset without meshes); checked."""
-    if mode != "video" and not store.has_meshes:
-        raise ClodsError("sim_training=mesh trains the simulator on ground-truth meshes, and the dataset has no meshes (imported from video)",
-                         where=f"{WHERE}.sim_training", hint="use sim_training=video with task_config.clods.initial_mesh=reconstructed")  # fmt: skip
-    if not uses_own_meshes(ctx, mode):
-        return False
-    missing = [i for i in traj_ids if i not in recovered]
-    if missing:
-        raise ClodsError(f"trajectories {missing} are scored, and their videos did not train the simulator, so they have no reconstructed mesh",
-                         where=f"{WHERE}.num_trajectories", hint="use train_subset=all or score fewer trajectories")  # fmt: skip
-    return True
-
-
 def _run_simulator(
     ctx: TaskContext, opts: DvcConfig, store: DatasetStore, traj_ids: list[int], views: list[int],
     view_cams: list["Camera"], future: list[int], scores: ImageScores,
@@ -237,10 +222,10 @@ def _run_simulator(
     splits = split_spec(ctx)
     train_views = list(splits.train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    if opts.sim_training == "mesh":
-        _own_meshes(ctx, store, "mesh", {}, traj_ids)  # refuses before training when there are no meshes
+    if opts.sim_training == "mesh":  # refuse before training
+        store.require_meshes(f"{WHERE}.sim_training=mesh (it trains the simulator on ground-truth meshes)")
     sim, timings, mode, recovered = train_simulator(ctx, opts.sim_training)
-    own = _own_meshes(ctx, store, mode, recovered, traj_ids)
+    own = own_meshes(ctx, store, mode, recovered, traj_ids, f"{WHERE}.num_trajectories")
     t0 = time.perf_counter()
     if own:  # stage 1 was fitted per video by the pipeline: its cost is in the simulator's
         trajs: dict[int, Any] = {i: recovered[i].mesh for i in traj_ids}

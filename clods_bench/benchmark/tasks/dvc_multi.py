@@ -42,11 +42,11 @@ from clods_bench.benchmark.video_runs import (
     build_predictor,
     fit_predictor,
     fit_renderer,
+    own_meshes,
     own_rollout_input,
     recover_videos,
     to_float,
     train_simulator,
-    uses_own_meshes,
     video_frames,
     write_video,
 )
@@ -297,13 +297,10 @@ def _run_simulator(
     cfg = ctx.config
     train_views = list(split_spec(ctx).train_views)
     train_cams = [store.cameras()[v] for v in train_views]
-    if opts.sim_training == "mesh":
-        store.require_meshes(f"{WHERE}.sim_training=mesh (it trains on ground-truth meshes)")
+    if opts.sim_training == "mesh":  # refuse before training
+        store.require_meshes(f"{WHERE}.sim_training=mesh (it trains the simulator on ground-truth meshes)")
     sim, timings, mode, recovered = train_simulator(ctx, opts.sim_training, list(split.train_ids), where=f"{WHERE}.sim_training")
-    own = uses_own_meshes(ctx, mode)
-    if not own:
-        store.require_meshes("dvc_multi with a simulator and renderer from a true initial mesh (on video alone set "
-                             "task_config.clods.initial_mesh=reconstructed)")  # fmt: skip
+    own = own_meshes(ctx, store, mode, recovered, split.train_ids, f"{WHERE}.num_train_trajectories")
     render_fit = render_s = rollout_s = 0.0
     rendered = steps = 0
     diverged: dict[str, int] = {}
@@ -313,9 +310,6 @@ def _run_simulator(
         t0 = time.perf_counter()
         if own:  # stage 1 per video, inside the pipeline: the training videos' cost is in the simulator's
             scene = recovered if s == "extrap" else recover_videos(ctx, list(ids), given)
-            missing = [i for i in ids if i not in scene]
-            if missing:
-                raise ClodsError(f"trajectories {missing} are scored, and their videos did not train the simulator", where=f"{WHERE}.num_train_trajectories")
             meshes: dict[int, Any] = {i: scene[i].mesh for i in ids}
             renderers = {i: scene[i].renderer for i in ids}
         else:
