@@ -119,8 +119,11 @@ def test_committed_tolerance_file_loads_and_excludes_timings() -> None:
     assert "seed-spread" in spec.justification
     assert spec.for_cell("table2_cdg.csv", "Frozen", "infer_ms_per_step") is None
     assert spec.for_cell("table3_nvs.csv", "SMGS", "fit_seconds") is None
-    assert spec.for_cell("table2_cdg.csv", "Frozen", "viewed/interp/d_avg/mean") == spec.default
-    assert spec.for_cell("table2_cdg.csv", "BSMS", "viewed/interp/d_avg/mean").rel > spec.default.rel
+    # rows that learn nothing: tight (only cross-host drift of the generated data), far below any learned row's rule
+    frozen = spec.for_cell("table2_cdg.csv", "Frozen", "viewed/interp/d_avg/mean")
+    assert frozen is not None and spec.default.rel <= frozen.rel <= 0.01
+    assert spec.for_cell("table2_cdg.csv", "BSMS", "viewed/interp/d_avg/mean").rel > 100 * frozen.rel
+    assert spec.for_cell("stability.csv", "Physics", "rmse/mean").rel < spec.for_cell("stability.csv", "MGN", "rmse/mean").rel
 
 
 def test_a_skip_rule_leaves_its_cells_out(tmp_path: Path) -> None:
