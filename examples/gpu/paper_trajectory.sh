@@ -33,9 +33,14 @@ mkdir -p "$OUT"
 # seconds since the run began: the stage-1 fit (clods_cache/stage1-*.pt), stage 2's per-frame partial saves,
 # stage 3's checkpoints, result.json.
 mkdir -p "$OUT/runs" && touch "$OUT/.mark" && began=$SECONDS
-# (`|| true`: under `set -e` a quiet poll, where grep matches nothing, would end the watcher)
-( while sleep 2; do { find "$OUT/runs" -type f -newer "$OUT/.mark" -printf "%P %s\n" 2>/dev/null | grep -v '\.lock' |
-    sed "s/^/[$((SECONDS - began)) s] wrote /"; } || true; touch "$OUT/.mark"; done ) | tee -a "$OUT/stages.txt" &
+# (`|| true`: under `set -e` a quiet poll, where grep matches nothing, would end the watcher.) `$!` must be the loop
+# itself, not a `| tee` after it: killing tee alone left the loop holding this script's stdout open, so a caller
+# piping the script's output waited forever after the script ended.
+watch_files() {
+  while sleep 2; do { find "$OUT/runs" -type f -newer "$OUT/.mark" -printf "%P %s\n" 2>/dev/null | grep -v '\.lock' |
+    sed "s/^/[$((SECONDS - began)) s] wrote /"; } || true; touch "$OUT/.mark"; done
+}
+watch_files > >(tee -a "$OUT/stages.txt") &
 watcher=$!
 trap 'kill $watcher 2>/dev/null || true' EXIT
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
@@ -53,7 +58,8 @@ t = res["timings"]
 steps = t.get("fit/stage3/train_steps", 0)
 print(f"stage 1 (renderer fit on frame 0): {t['fit/stage1_cost_seconds']:.1f} s")
 print(f"stage 2 (mesh extraction): {t['fit/stage2_ms_per_frame']:.1f} ms per frame, {t['fit/stage2_iterations_per_frame']:.1f} "
-      f"iterations per frame, {t['fit/stage2_frames']:.0f} frames")
+      f"iterations per frame, {t['fit/stage2_frames']:.0f} frames; {t['fit/stage2_wall_seconds']:.1f} s wall, reading the "
+      f"frames (rendered on demand) included")
 print(f"stage 3 (MGN on the extracted meshes, 8-step rollout loss): {t['fit/stage3/train_seconds']:.1f} s for "
       f"{steps:.0f} steps = {1000 * t['fit/stage3/train_seconds'] / max(steps - warmup, 1):.1f} ms per optimiser step "
       f"(the {warmup} warm-up steps only feed the normalisers)")
