@@ -33,6 +33,8 @@ def bench_data(console: Console, steps: int = 400, views: int = 8) -> dict[str, 
     table.add_row("solver: nodes in contact / step", f"{contact['contacts_per_step']:.1f}", "", "")
     table.add_row("solver: time with / without contact", f"{slowdown:.2f}", f"{CONTACT_TARGET_RATIO:.1f}", f"{slowdown / CONTACT_TARGET_RATIO:.2f}")
     table.add_row("rasterizer ms / 128x128 view", f"{raster['ms_per_view']:.2f}", f"{RASTER_TARGET_MS:.0f}", f"{raster['ms_per_view'] / RASTER_TARGET_MS:.2f}")
+    table.add_row(f"rasterizer: {views} views in 1 / {raster['threads']} threads (speed-up)", f"{raster['thread_speedup']:.2f}x",
+                  "", f"{raster['ms_per_view_one_thread']:.2f} / {raster['ms_per_view']:.2f} ms a view")  # fmt: skip
     console.print(table)
     return {
         "solver_seconds_per_400": per400,
@@ -41,4 +43,6 @@ def bench_data(console: Console, steps: int = 400, views: int = 8) -> dict[str, 
         "solver_contact_slowdown": slowdown,
         "solver_contacts_per_step": contact["contacts_per_step"],
         "raster_ms_per_view": raster["ms_per_view"],
+        "raster_threads": raster["threads"],
+        "raster_thread_speedup": raster["thread_speedup"],
     }

@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
+from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_threads, render_views
 from clods_bench.datasets.textures import procedural_texture
 
 
@@ -30,24 +30,31 @@ def _bench_mesh() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def bench_rasterizer(num_views: int = 8, size: int = 128, supersample: int = 2, repeats: int = 10) -> dict:
-    """Milliseconds per view of render_views (after a first, JIT-compiling call, timed separately)."""
+    """Milliseconds per view of render_views (after a first, JIT-compiling call, timed separately), in the threads it
+    uses by default and, alternated with those calls in the same run, in one thread (the reference for the speed-up)."""
     verts, cells, uv = _bench_mesh()
     centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     cameras = camera_rig(num_views, centre, 3.5, size, size, fov_deg=30.0)
     texture = procedural_texture(512, seed=0)
     settings = RasterSettings(supersample=supersample, light=DirectionalLight((-0.4, 0.3, -1.0)))
+    threads = min(render_threads(), num_views)
     t0 = time.perf_counter()
     imgs = render_views(verts, cells, uv, texture, cameras, settings)
     first = time.perf_counter() - t0
-    times = []
+    times: dict[int, list[float]] = {threads: [], 1: []}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        render_views(verts, cells, uv, texture, cameras, settings)
-        times.append(time.perf_counter() - t0)
+        for k in times:
+            t0 = time.perf_counter()
+            render_views(verts, cells, uv, texture, cameras, settings, threads=k)
+            times[k].append(time.perf_counter() - t0)
     coverage = float((np.abs(imgs - np.asarray(settings.background, np.float32)).max(axis=-1) > 1e-6).mean())
+    ms = {k: 1000.0 * float(np.median(v)) / num_views for k, v in times.items()}
     return {
-        "ms_per_view": 1000.0 * float(np.median(times)) / num_views,
-        "ms_per_view_min": 1000.0 * float(np.min(times)) / num_views,
+        "ms_per_view": ms[threads],
+        "ms_per_view_min": 1000.0 * float(np.min(times[threads])) / num_views,
+        "ms_per_view_one_thread": ms[1],
+        "threads": threads,
+        "thread_speedup": ms[1] / ms[threads],
         "first_call_s": first,
         "num_views": num_views,
         "size": size,

@@ -349,6 +349,28 @@ def test_render_views_matches_single_renders_and_settings():
     assert hash(settings) == hash(RasterSettings(3, (0.0, 0.5, 1.0), 1e-3, DirectionalLight(np.array([1.0, 2.0, -1.0]))))
 
 
+def test_threaded_render_views_is_the_serial_render_bit_for_bit(monkeypatch):
+    """Views drawn in 2, 3 or 8 threads (more threads than views) equal the one-thread images exactly, shadows and
+    flat-coloured faces included; the workers' cap limits the threads; 0 threads is one clear error."""
+    from clods_bench.datasets.rasterizer import render_threads
+
+    rng = np.random.default_rng(5)
+    verts = rng.normal(size=(40, 3)) * 0.5
+    cells = rng.integers(0, 40, (60, 3))
+    uv, tex = rng.random((40, 2)), rng.random((8, 8, 3)).astype(np.float32)
+    colors = np.where(rng.random((60, 1)) < 0.3, rng.random((60, 3)), np.nan)
+    cams = camera_rig(5, np.zeros(3), 4.0, 24, 20)
+    settings = RasterSettings(supersample=2, light=DirectionalLight((1.0, 2.0, -1.0), shadow_map_size=64))
+    serial = render_views(verts, cells, uv, tex, cams, settings, colors, threads=1)
+    assert np.unique(serial).size > 50  # a textured, shaded picture, not a blank one
+    for k in (2, 3, 8):
+        np.testing.assert_array_equal(render_views(verts, cells, uv, tex, cams, settings, colors, threads=k), serial)
+    monkeypatch.setenv("CLODS_BENCH_MAX_THREADS", "2")
+    assert render_threads(8) == 2 and render_threads(1) == 1
+    with pytest.raises(ClodsError, match="threads must be >= 1"):
+        render_views(verts, cells, uv, tex, cams, settings, threads=0)
+
+
 def test_bad_inputs_raise_clods_errors_naming_the_argument():
     cam = front_camera(8, 8, 8.0)
     verts = np.zeros((4, 3))
@@ -397,7 +419,8 @@ def test_bench_rasterizer_reports_on_the_flagsimple_mesh():
 
     result = bench_rasterizer(num_views=4, size=64)
     assert result["num_faces"] > 2900 and result["coverage"] > 0.2
-    assert result["ms_per_view"] > 0
+    assert result["ms_per_view"] > 0 and result["ms_per_view_one_thread"] > 0
+    assert result["threads"] >= 1 and result["thread_speedup"] > 0
 
 
 # --- flat face colours (obstacles) ------------------------------------------------------------
