@@ -58,7 +58,7 @@ t = res["timings"]
 steps = t.get("fit/stage3/train_steps", 0)
 print(f"stage 1 (renderer fit on frame 0): {t['fit/stage1_cost_seconds']:.1f} s")
 print(f"stage 2 (mesh extraction): {t['fit/stage2_ms_per_frame']:.1f} ms per frame, {t['fit/stage2_iterations_per_frame']:.1f} "
-      f"iterations per frame, {t['fit/stage2_frames']:.0f} frames; {t['fit/stage2_wall_seconds']:.1f} s wall, reading the "
+      f"iterations per frame, {t['fit/stage2_frames']:.0f} frames; {t.get('fit/stage2_wall_seconds', float('nan')):.1f} s wall, reading the "
       f"frames (rendered on demand) included")
 print(f"stage 3 (MGN on the extracted meshes, 8-step rollout loss): {t['fit/stage3/train_seconds']:.1f} s for "
       f"{steps:.0f} steps = {1000 * t['fit/stage3/train_seconds'] / max(steps - warmup, 1):.1f} ms per optimiser step "
