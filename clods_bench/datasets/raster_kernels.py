@@ -249,21 +249,28 @@ def shade_view(fid, bary, verts, cells, uv, tex, flat, face_col, normals, use_li
 
 
 @njit(cache=True, nogil=True)
-def render_views_kernel(
-    verts, cells, uv, tex, flat, face_col, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, shadow_size, shadow_bias,
-    shadow_slope_bias, shadow_basis, bg, out,
-):  # fmt: skip
-    """Render every view n into out[n] (N,H,W,3); cameras given as stacked K, R, t; one shadow map per call (frame)."""
-    hs, ws = h * s, w * s
-    zbuf = np.empty(hs * ws)
-    fid = np.empty(hs * ws, dtype=np.int32)
-    bary = np.empty((hs * ws, 3))
-    normals = vertex_normals(verts, cells) if use_light else np.zeros((1, 3))
+def frame_shadow(verts, cells, use_light, shadow_size, shadow_bias, shadow_slope_bias, shadow_basis):
+    """(u0, v0, texel, depth map) of one frame's shadow map; an empty map when there is no light or no shadow."""
     smap = np.empty(shadow_size * shadow_size if use_light else 0)
     u0, v0, texel = 0.0, 0.0, 1.0
     if use_light and shadow_size > 0:
         u0, v0, texel = sk.shadow_frame(verts, shadow_basis, shadow_size)
         sk.shadow_map(verts, cells, shadow_basis, shadow_size, shadow_bias, shadow_slope_bias, u0, v0, texel, smap)
+    return u0, v0, texel, smap
+
+
+@njit(cache=True, nogil=True)
+def render_views_kernel(
+    verts, cells, uv, tex, flat, face_col, Ks, Rs, ts, h, w, s, near, use_light, light_dir, ambient, diffuse, shadow_size,
+    shadow_basis, u0, v0, texel, smap, bg, out,
+):  # fmt: skip
+    """Render every view n into out[n] (N,H,W,3); cameras given as stacked K, R, t; the frame's shadow map from
+    `frame_shadow`, made once per frame however many calls share the views."""
+    hs, ws = h * s, w * s
+    zbuf = np.empty(hs * ws)
+    fid = np.empty(hs * ws, dtype=np.int32)
+    bary = np.empty((hs * ws, 3))
+    normals = vertex_normals(verts, cells) if use_light else np.zeros((1, 3))
     shadow = (shadow_size if use_light else 0, shadow_basis, smap, u0, v0, texel)
     for n in range(Ks.shape[0]):
         cam = to_camera(verts, Rs[n], ts[n])

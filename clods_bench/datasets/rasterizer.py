@@ -154,13 +154,16 @@ def render_views(
     basis = light.basis() if shadow_size > 0 else np.eye(3)
     out = np.empty((Ks.shape[0], h, w, 3), dtype=np.float32)
     bg = np.asarray(settings.background, dtype=np.float64)
+    u0, v0, texel, smap = rk.frame_shadow(
+        verts, cells, light is not None, shadow_size, float(light.shadow_bias) if light is not None else 0.0,
+        float(light.shadow_slope_bias) if light is not None else 0.0, basis,
+    )  # fmt: skip
 
-    def draw(a: int, b: int) -> None:  # views a..b-1 into out[a:b] (the kernel releases the GIL)
+    def draw(a: int, b: int) -> None:  # views a..b-1 into out[a:b] (the kernel releases the GIL; smap is only read)
         rk.render_views_kernel(
             verts, cells, uv, texture, flat, face_col, Ks[a:b], Rs[a:b], ts[a:b], h, w, int(settings.supersample),
-            float(settings.near), light is not None, light_dir, ambient, diffuse, shadow_size,
-            float(light.shadow_bias) if light is not None else 0.0, float(light.shadow_slope_bias) if light is not None else 0.0,
-            basis, bg, out[a:b],
+            float(settings.near), light is not None, light_dir, ambient, diffuse, shadow_size, basis, u0, v0, texel, smap,
+            bg, out[a:b],
         )  # fmt: skip
 
     n = Ks.shape[0]
