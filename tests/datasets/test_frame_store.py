@@ -72,6 +72,34 @@ def test_sparse_frames_decode_only_their_chunks(array):
     assert lazy.chunks_read == 2  # time chunks 0 and 2, not chunk 1 between them
 
 
+def test_selection_reads_nothing_until_indexed_and_equals_numpy(array):
+    ref, lazy = frames(), LazyFrames(array)
+    sel = lazy.select(slice(1, 7), [2, 0])
+    assert lazy.chunks_read == 0 and sel.shape == (6, 2, H, W, 3) and len(sel) == 6
+    want = ref[1:7][:, [2, 0]]
+    np.testing.assert_array_equal(sel[:], want)
+    for key in (np.s_[3], np.s_[-1], np.s_[2:5, 1], np.s_[0, [1]], np.s_[4, :, 1:3]):
+        np.testing.assert_array_equal(sel[key], want[key])
+    np.testing.assert_array_equal(sel.read([5, 0], [1]), want[[5, 0]][:, [1]])
+    np.testing.assert_array_equal(lazy.select()[:], ref)
+    with pytest.raises(IndexError):
+        sel[6]
+    with pytest.raises(IndexError):
+        lazy.select(slice(None), [3])
+
+
+def test_walking_a_selection_frame_by_frame_decodes_each_chunk_once(array):
+    ref, lazy = frames(), LazyFrames(array)
+    sel = lazy.select(slice(0, 7), [0, 2])
+    for t in range(7):
+        np.testing.assert_array_equal(sel[t], ref[t][[0, 2]])
+    assert lazy.chunks_read == 3 * 2  # time chunks [0,3) [3,6) [6,7) of 2 cameras, each once (frame by frame: 7 x 2)
+    np.testing.assert_array_equal(sel[6], ref[6][[0, 2]])  # the last block is held
+    assert lazy.chunks_read == 6
+    odd = lazy.select([5, 1, 2], [1])  # not consecutive: each frame its own block, values still right
+    np.testing.assert_array_equal(np.stack([odd[t] for t in range(3)]), ref[[5, 1, 2]][:, [1]])
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "empty"])
 def test_damaged_chunk_names_the_file(array, damage):
     path = array / chunk_key(1, 0)

@@ -54,6 +54,10 @@ def test_only_what_is_read_is_rendered_and_the_cache_is_bounded(tmp_path: Path) 
     assert small.images_rendered == 8 * 4 and len(small._cache) == 2
     small.read([7], [3])  # the most recent image is still cached
     assert small.images_rendered == 32
+    lazy = rendered.frames(1).select(slice(2, 8), [3, 1])  # what stage 2 walks: nothing rendered until a frame is read
+    assert lazy.base.images_rendered == 0
+    np.testing.assert_array_equal(lazy[4], stored.frames(1)[6, [3, 1]])
+    assert lazy.base.images_rendered == 2
 
 
 def test_on_demand_options_and_damage_are_clear_errors(tmp_path: Path) -> None:

@@ -72,6 +72,9 @@ class ClodsConfig:
     """Where stage 1-2 results are cached; None: `<runs_dir>/clods_cache`."""
     num_threads: int | None = None
     """torch CPU threads in stages 1-2; None leaves torch's setting."""
+    read_ahead: bool = True
+    """Stage 2 reads frame t+1 in a background thread while it fits frame t (`clods.prefetch`): hides most of the
+    CPU rasterizer's reads when frames are rendered on demand and the fit runs on a GPU. Same meshes either way."""
     sim_overrides: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_SIM_OVERRIDES))
     """Stage 3: options laid over `sim_config.<sim>` for learned simulators. The keys given are laid over the default
     (paper eq. 8: the 8-step rollout loss), so setting one key (e.g. `train_steps`) keeps that loss; `loss: one_step`
@@ -115,7 +118,7 @@ class ClodsConfig:
     def extraction_identity(self) -> dict[str, Any]:
         """The fields that change the extracted meshes (part of the cache key); stage-3 and bookkeeping fields are left out."""
         d = dataclasses.asdict(self)
-        for key in ("variant", "cache_dir", "num_threads", "sim_overrides", "extraction_seed"):
+        for key in ("variant", "cache_dir", "num_threads", "read_ahead", "sim_overrides", "extraction_seed"):
             d.pop(key)
         d["scale_range"] = list(d["scale_range"])
         if self.initial_mesh == "truth":  # keys of extractions from the true mesh stay what they were

@@ -24,6 +24,7 @@ from torch import Tensor
 from clods_bench.benchmark.clods.cache import ExtractionCache, Extracted
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.edge import edge_lengths, edge_loss, mesh_edges
+from clods_bench.benchmark.clods.prefetch import frames_ahead
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 from clods_bench.threads import torch_threads
@@ -155,8 +156,8 @@ def extract_trajectory(
     free = np.asarray(node_type) == NORMAL
     job = bar.add_task(f"stage 2: trajectory {index}", total=video.shape[0] - 1, completed=ext.num_frames - 1, info="") if bar else None
     with torch_threads(cfg.num_threads):
-        for t in range(ext.num_frames, video.shape[0]):
-            target = frame_target(video[t], renderer_device(renderer))
+        for t, frame in frames_ahead(video, ext.num_frames, video.shape[0], ahead=cfg.read_ahead):
+            target = frame_target(frame, renderer_device(renderer))
             t0 = time.perf_counter()  # the frame's cost includes the predict step (start=simulator)
             start = torch.from_numpy(start_guess(ext.world_pos, cfg, free, predict))
             fit = fit_frame(renderer, cameras, target, start, prior, cfg)

@@ -127,7 +127,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
         raise ClodsError(f"stage 2 needs 2..{splits.num_steps} frames, asked for {frames}", where="clods pipeline")
     seed = extraction_seed(ctx, opts)
     gts = [store.load_trajectory(i).slice(0, frames) for i in train_ids] if store.has_meshes else []
-    videos = [store.frames(i)[:frames, views] for i in train_ids]  # decodes only these cameras' first frames
+    videos = [store.frames(i).select(slice(0, frames), views) for i in train_ids]  # lazy: read frame by frame as fitted
     if opts.initial_mesh == "reconstructed":  # stage 0 per video: its own topology, stage 1 per video
         from clods_bench.benchmark.clods.reconstructed import extract_reconstructed
 

@@ -124,15 +124,14 @@ def _scored_in_images(ctx: TaskContext, opts: ExtractConfig, store: Any, ids: li
     scores = {k: ImageScores(lpips if isinstance(lpips, LpipsMetric) else None) for k in groups}
     frames = list(range(1, ext.meshes[0].num_steps))
     for i, mesh, renderer in zip(ids, ext.meshes, ext.renderers):
-        video = store.frames(i)[: mesh.num_steps]
         for prefix, views in groups.items():
             cams = [rig[v] for v in views]
-            clip = to_float(video[:, views])
+            clip = store.frames(i).select(slice(0, mesh.num_steps), views)  # lazy: one frame at a time (paper videos are GBs)
             for t in frames:
                 with torch.no_grad():
                     out = renderer.render(torch.from_numpy(np.ascontiguousarray(mesh.world_pos[t])), cams)
                 img = as_images(out, (len(cams), h, w, 3), where=f"renderer '{ctx.config.renderer}', trajectory {i}, frame {t}")
-                scores[prefix].add(i, t, img, clip[t])
+                scores[prefix].add(i, t, img, to_float(clip[t]))
     metrics: dict[str, float] = {}
     for prefix, sc in scores.items():
         metrics.update(sc.means(None, prefix=prefix))
