@@ -136,16 +136,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer", "video"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
                         "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
                         "store: frame store bytes and read speed vs raw .npy; "
                         "infer: ms per frame of CloDS (learned step + SMGS render of every view) vs the traditional pipeline "
-                        "(physics solver step + ground-truth rasterizer) at --preset size")  # fmt: skip
+                        "(physics solver step + ground-truth rasterizer) at --preset size; "
+                        "video: training-step time of each video predictor at --preset size and its preset training time")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
                    "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer: config override, e.g. data.root=DIR; sim: sim_config.<name>.<field>=VALUE")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer, video: config override, e.g. data.root=DIR or video_config.tau.hid_s=16; sim: sim_config.<name>.<field>=VALUE")
     p.add_argument("--blocks", type=int, default=None,
                    help="store: render only this many chunk-long runs of frames spread through the trajectory (all cameras) "
                         "and extrapolate the bytes (default: every frame)")  # fmt: skip
@@ -159,13 +160,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", action=argparse.BooleanOptionalAction, default=True,
                    help="render: time the plain-torch reference (--no-reference at large sizes: its memory grows with pixels)")
     p.add_argument("--sims", nargs="+", default=["mgn", "bsms", "hcmt", "physics"], help="sim: simulators to time")
+    p.add_argument("--predictors", nargs="+", default=["simvp", "tau", "mau", "mmvp"], help="video: video predictors to time")
     p.add_argument("--frames", type=int, default=None, help="sim: rollout length in frames (default 12); stage2: frames to extract "
                    "(default 12); infer: frames timed after one untimed frame (default 5)")  # fmt: skip
     p.add_argument("--fit-iterations", type=int, default=None,
                    help="stage2: renderer fit iterations on frame 0 before timing (default 60); infer: the same (default 0: initial parameters)")  # fmt: skip
     p.add_argument("--sim", default="mgn", help="infer: CloDS's learned simulator (default mgn; untrained weights, the preset's size)")
-    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU; sim: "
-                   "also time each learned simulator on this device (cpu / device speed-up in one run)")
+    p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU; sim, video: "
+                   "also time each learned simulator or predictor on this device (cpu / device speed-up in one run)")
     p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
     p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
     p.set_defaults(func=cmd_bench)
@@ -444,6 +446,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         cfg = load_config(args.preset, None, list(args.overrides))
         print_bench_infer(console, cfg, args.out, progress=not args.no_progress, sim=args.sim, frames=5 if args.frames is None else args.frames,
                           views=args.views, device=args.device, fit_iterations=args.fit_iterations or 0)  # fmt: skip
+    elif args.what == "video":
+        from clods_bench.benchmark.config import load_config
+        from clods_bench.benchmark.infer_bench import check_device
+        from clods_bench.benchmark.video_bench import bench_video
+
+        check_device(args.device, where="bench video --device")
+        bench_video(console, load_config(args.preset, None, list(args.overrides)), predictors=args.predictors, devices=("cpu", args.device))
     elif args.what == "store":
         from clods_bench.benchmark.config import load_config
         from clods_bench.datasets.store_bench import print_bench_store

@@ -22,17 +22,10 @@ from clods_bench.benchmark.infer_output import load_infer_results, print_bench_i
 from clods_bench.benchmark.registry import Registry, make_plugin_manager
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.errors import ClodsError
+from tests.benchmark.fake_clock import FakeClock
 
 TINY = ["data.resolution=[5,3]", "data.num_cameras=3", "data.num_views_test=1", "data.image_size=16", "sim_config.mgn.latent_size=8",
         "sim_config.mgn.message_passing_steps=1", "sim_config.mgn.num_threads=1", "renderer_config.smgs.gaussians_per_face=2"]  # fmt: skip
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 CLOCK = FakeClock()

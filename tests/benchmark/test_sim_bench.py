@@ -12,14 +12,7 @@ from clods_bench.benchmark.descriptors import PluginSpec
 from clods_bench.benchmark.hookspecs import hookimpl
 from clods_bench.benchmark.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.sim_bench import bench_sim
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
+from tests.benchmark.fake_clock import FakeClock
 
 
 CLOCK = FakeClock()
