@@ -128,12 +128,13 @@ def orient_material_coords(mesh_pos: np.ndarray, handles: np.ndarray, world0: np
 
 
 def extract_reconstructed(
-    ctx: TaskContext, opts: ClodsConfig, train_ids: Sequence[int], gts: Sequence[Trajectory], videos: Sequence[np.ndarray],
+    ctx: TaskContext, opts: ClodsConfig, train_ids: Sequence[int], gts: Sequence[Trajectory], videos: Sequence[Any],
     cams: Sequence[Camera], identity: dict[str, Any], seed: int, dt_meta: Sequence[tuple[float, dict[str, Any]]],
 ) -> tuple[list[Trajectory], dict[str, float], np.ndarray | None, str, list[Any]]:  # fmt: skip
     """(meshes with handles, statistics, per-frame attached E-GT (B, frames), cache key, the per-video stage-1
-    renderers) of stages 0-2 on `videos`. `dt_meta` is each video's (dt, meta); `gts` its true meshes, or empty for a
-    dataset without meshes: nothing here needs them but the E-GT (then None) and the default node count."""
+    renderers) of stages 0-2 on `videos` ((T,N,H,W,3) uint8 frame arrays, read frame by frame). `dt_meta` is each
+    video's (dt, meta); `gts` its true meshes, or empty for a dataset without meshes: nothing here needs them but the
+    E-GT (then None) and the default node count."""
     cfg = ctx.config
     s0 = stage0_config(opts, seed)
     if not gts and s0.num_nodes is None:
