@@ -94,8 +94,8 @@ def bench_video(
     from clods_bench.benchmark.registry import default_registry
 
     reg = registry if registry is not None else default_registry()
-    name = config.data.scene  # a registry without scene plugins (tests) still knows the built-in ones
-    scene = reg.get("scene", name) if name in reg.names("scene") else get_scene(name)
+    scene_name = config.data.scene  # a registry without scene plugins (tests) still knows the built-in ones
+    scene = reg.get("scene", scene_name) if scene_name in reg.names("scene") else get_scene(scene_name)
     frames, size = config.data.interp_steps + 1, config.data.image_size
     videos = synthetic_videos(frames, size)
     known = set(reg.names("video_predictor"))
