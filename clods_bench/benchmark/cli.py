@@ -168,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sim", default="mgn", help="infer: CloDS's learned simulator (default mgn; untrained weights, the preset's size)")
     p.add_argument("--device", default="cpu", help="infer: cpu, or cuda[:N] to render with the gsplat backend on the GPU; sim, video: "
                    "also time each learned simulator or predictor on this device (cpu / device speed-up in one run)")
+    p.add_argument("--cpu", action=argparse.BooleanOptionalAction, default=True,
+                   help="video: time each predictor on the CPU too (--no-cpu with --device cuda: only the device rows)")
     p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
     p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
     p.set_defaults(func=cmd_bench)
@@ -452,7 +454,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from clods_bench.benchmark.video_bench import bench_video
 
         check_device(args.device, where="bench video --device")
-        bench_video(console, load_config(args.preset, None, list(args.overrides)), predictors=args.predictors, devices=("cpu", args.device))
+        bench_video(console, load_config(args.preset, None, list(args.overrides)), predictors=args.predictors, devices=("cpu", args.device),
+                    cpu=args.cpu or args.device == "cpu")
     elif args.what == "store":
         from clods_bench.benchmark.config import load_config
         from clods_bench.datasets.store_bench import print_bench_store

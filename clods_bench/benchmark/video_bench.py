@@ -87,10 +87,12 @@ def bench_video(
     registry: Any = None,
     clock: Callable[[], float] = time.perf_counter,
     reference: str = "simvp",
+    cpu: bool = True,
 ) -> dict[str, VideoTiming]:
     """Time each registered predictor in `predictors` at `config`'s sizes (its video_config, frames and image size) on
-    the CPU and each other device of `devices` it supports; print a table with each one's step time over `reference`'s
-    on the same device and the preset's training time per row."""
+    the CPU (unless `cpu` is off: on a GPU machine those rows can take minutes) and each other device of `devices` it
+    supports; print a table with each one's step time over `reference`'s on the same device and the preset's training
+    time per row."""
     from clods_bench.benchmark.registry import default_registry
 
     reg = registry if registry is not None else default_registry()
@@ -106,7 +108,7 @@ def bench_video(
             base = dict(config.video_config.get(name, {}))
             option = step_option(spec)
             steps = int(getattr(spec.make_config(base, where=f"video_config.{name}"), option)) if option else 0
-            for device in ["cpu", *[d for d in devices if d != "cpu"]]:
+            for device in [*(["cpu"] if cpu else []), *[d for d in devices if d != "cpu"]]:
                 if device != "cpu" and not (spec.learned and has_option(spec, "device")):
                     continue
                 key = row_name(name, device)
