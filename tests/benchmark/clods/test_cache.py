@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import zipfile
 
 import numpy as np
 import pytest
@@ -57,6 +58,8 @@ def test_resume_after_interruption_and_reuse(scene, video, tmp_path):
         extract_trajectory(broken, *args, cache=cache, index=5)
     partial = cache.load(5, partial=True)
     assert partial is not None and partial.num_frames == 3 and cache.load(5) is None
+    with zipfile.ZipFile(cache.path(5, partial=True)) as z:  # rewritten every frame: stored, not deflated
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
 
     resumed_renderer = Counting(scene["renderer"])
     resumed = extract_trajectory(resumed_renderer, *args, cache=cache, index=5)
