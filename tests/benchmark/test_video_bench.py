@@ -98,9 +98,12 @@ def test_synthetic_videos_have_the_asked_shape_and_range():
     assert len(vids) == 3 and all(v.shape == (5, 8, 8, 3) and v.dtype == np.float32 and 0 <= v.min() and v.max() < 1 for v in vids)
 
 
-def test_real_predictors_at_a_tiny_size_give_a_positive_step_time():
+def test_real_predictors_at_a_tiny_size_give_a_finite_step_time():
     cfg = load_config("ci", overrides=["data.image_size=16", "data.interp_steps=11", "video_config.simvp.batch_size=2",
                                        "video_config.simvp.enc_layers=2"])  # fmt: skip
     out = bench_video(Console(quiet=True), cfg, predictors=("simvp", "copylast"), train_steps=(1, 2))
-    assert out["simvp"].train_s_per_step > 0 and out["simvp"].preset_steps == 250
+    # finite, not positive: a difference of two wall-clock fits one step apart can go negative on a loaded machine
+    # (it did, -0.061 s, in a CI rehearsal beside another job); the arithmetic is checked on the fake clock above
+    assert np.isfinite(out["simvp"].train_s_per_step) and out["simvp"].preset_steps == 250
+    assert out["simvp"].note == "(train_steps 2 - 1) / 1"
     assert np.isnan(out["copylast"].train_s_per_step)
