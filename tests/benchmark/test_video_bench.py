@@ -87,7 +87,7 @@ def test_other_devices_only_for_predictors_with_a_device_option():
     assert "cpu / this" in text and "2" in text.split("ref@gpu0")[1].split("\n")[0]  # the speed-up over the CPU
 
 
-def test_without_the_cpu_only_device_rows_with_their_own_ratio():
+def test_without_the_cpu_only_device_rows():
     out = bench_video(Console(quiet=True), load_config("ci"), predictors=("ref", "slow"), devices=("cpu", "gpu0"), registry=registry(),
                       clock=CLOCK, reference="ref", cpu=False)  # fmt: skip
     assert set(out) == {"ref@gpu0"} and out["ref@gpu0"].train_s_per_step == 0.25  # "slow" has no device option: no row at all

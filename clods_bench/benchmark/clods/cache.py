@@ -80,8 +80,9 @@ class ExtractionCache:
 
     def save(self, index: int, ext: Extracted, partial: bool = False) -> None:
         """Write trajectory `index` atomically; a finished one replaces (and removes) its partial file. The partial file
-        is rewritten after every frame, so it is stored undeflated: deflating 300 paper frames (4.7 MB) took 0.28 s a
-        save, which grew stage 2's wall time per frame from 0.98 s to 1.53 s by frame 250 on the H200 machine."""
+        is rewritten after every frame, so it is stored undeflated: deflating 250 paper frames (4.7 MB) took 0.28 s a
+        save on the development machine, and stage 2's wall time per frame grew from 0.98 s to 1.53 s by frame 250
+        on an H200 machine."""
         write_npz(self.path(index, partial), compress=not partial, world_pos=ext.world_pos, iterations=ext.iterations, loss=ext.loss, seconds=ext.seconds)
         if not partial:
             self.path(index, partial=True).unlink(missing_ok=True)
