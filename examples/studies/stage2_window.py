@@ -44,7 +44,10 @@ def main() -> None:
     p.add_argument("--held-out", type=int, default=5, help="held-out cameras of the rig (the preset's data.num_views_test)")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE", help="a task_config.clods field")
     args = p.parse_args()
+    if not 1 <= args.start < args.end:
+        raise SystemExit(f"need 1 <= start < end, got start {args.start}, end {args.end}")
     cfg = ClodsConfig(**{k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.sets)})
+    cfg.validate()  # the pipeline's checks of the same fields (a field out of range: one error naming it)
     print({f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in ("iterations", "min_iterations", "patience", "learning_rate", "start")})
     store = DatasetStore.open(args.dataset)
     cams_all = store.cameras()
