@@ -12,6 +12,9 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
+import signal
+import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -86,9 +89,27 @@ def run_seed_job(job: SeedJob) -> dict[str, Any]:
     return {"name": job.name, "seed": int(job.seed), "record_dir": str(rdir), "wall_seconds": time.perf_counter() - t0}
 
 
-def _init_worker(threads: int) -> None:
-    """Start of a parallel worker process: cap torch's threads (every later setting too, see `clods_bench.threads`)
-    and numba's parallel kernels (the splatting backend) at `threads`."""
+def _die_with_parent(parent: int) -> None:
+    """Linux: have the kernel send this worker SIGTERM when the process that started it dies, even by SIGKILL, so a
+    killed `reproduce` leaves no worker computing on alone (its writes are atomic and its locks are `flock`s, which
+    die with it). Elsewhere a no-op."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+        return
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+
+
+def _init_worker(threads: int, parent: int | None = None) -> None:
+    """Start of a parallel worker process: die with its parent (`_die_with_parent`), cap torch's threads (every later
+    setting too, see `clods_bench.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
+    if parent is not None:
+        _die_with_parent(parent)
     os.environ[MAX_THREADS_ENV] = str(threads)
     os.environ["OMP_NUM_THREADS"] = os.environ["NUMBA_NUM_THREADS"] = str(threads)
     import numba
@@ -127,19 +148,56 @@ class LocalExecutor:
         threads = max(1, (os.cpu_count() or 1) // self.jobs)
         results: list[Any] = [None] * len(items)
         ctx = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no forked torch/numba state
-        with ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_init_worker, initargs=(threads,)) as pool:
-            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-            with Progress(disable=not progress) as bar:
-                task = bar.add_task(f"jobs (local, {self.jobs} processes x {threads} threads)", total=len(items))
-                try:
+        pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_init_worker, initargs=(threads, os.getpid()))
+        with _term_as_interrupt():
+            try:
+                futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+                with Progress(disable=not progress) as bar:
+                    task = bar.add_task(f"jobs (local, {self.jobs} processes x {threads} threads)", total=len(items))
                     for fut in as_completed(futures):
                         results[futures[fut]] = fut.result()
                         bar.advance(task)
-                except BaseException:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+            except BaseException:
+                stop_workers(pool)
+                raise
+        pool.shutdown(wait=True)
         return results
+
+
+def stop_workers(pool: ProcessPoolExecutor, grace: float = 5.0) -> None:
+    """Stop a process pool now: cancel its queued jobs and terminate its workers, running jobs included (an interrupted
+    job resumes from what it wrote: checkpoints, caches and records are written atomically). Waiting for the running
+    jobs instead, as `shutdown` does, kept an interrupted `reproduce` alive for as long as its longest job."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + grace
+    for proc in procs:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.is_alive():
+            proc.kill()
+            proc.join(1.0)
+
+
+class _term_as_interrupt:
+    """While active (main thread only), SIGTERM raises KeyboardInterrupt like Ctrl-C, so `kill <pid>` and a scheduler's
+    timeout stop the workers and end with the CLI's 'interrupted' message instead of leaving the workers running."""
+
+    def __enter__(self) -> "_term_as_interrupt":
+        self.previous: Any = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 class RayExecutor:

@@ -162,3 +162,88 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
         monkeypatch.setenv(GPU_SHARE_ENV, bad)
         with pytest.raises(ClodsError, match=GPU_SHARE_ENV.replace("$", "")):
             RayExecutor()
+
+
+_SLEEPER = """
+import os, sys, time
+from pathlib import Path
+from clods_bench.benchmark.executors import LocalExecutor
+
+def job(folder):
+    (Path(folder) / f"{os.getpid()}.pid").write_text("")
+    time.sleep(120)
+    return 0
+
+if __name__ == "__main__":
+    try:
+        LocalExecutor(jobs=2).map(job, [sys.argv[1]] * 4, progress=False)
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+        sys.exit(130)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether `pid` runs (a zombie, dead but not yet reaped, counts as gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _start_sleepers(tmp_path: Path) -> tuple["subprocess.Popen[str]", list[int]]:
+    """A parent running LocalExecutor(jobs=2) over 120-s jobs, and its two workers' pids once both jobs have started."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "sleepers.py"
+    script.write_text(_SLEEPER)
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")]))
+    parent = subprocess.Popen([sys.executable, str(script), str(pids)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while len(list(pids.glob("*.pid"))) < 2:
+        if parent.poll() is not None or time.monotonic() > deadline:
+            parent.kill()
+            pytest.fail(f"workers did not start: {parent.communicate()[0]}")
+        time.sleep(0.2)
+    return parent, [int(p.stem) for p in pids.glob("*.pid")]
+
+
+def _gone_within(pids: list[int], seconds: float) -> bool:
+    import time
+
+    deadline = time.monotonic() + seconds
+    while any(_alive(p) for p in pids):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_sigterm_to_the_parent_stops_running_workers(tmp_path: Path) -> None:
+    """`kill <reproduce pid>` used to leave the workers computing on alone, for hours (a per-frame 3DGS job)."""
+    import signal
+    import time
+
+    parent, workers = _start_sleepers(tmp_path)
+    t0 = time.monotonic()
+    parent.send_signal(signal.SIGTERM)  # the parent alone, not its process group
+    out, _ = parent.communicate(timeout=60)
+    assert parent.returncode == 130 and "interrupted" in out, out
+    assert time.monotonic() - t0 < 30  # not the 120 s of a running job
+    assert _gone_within(workers, 10)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_workers_die_with_a_killed_parent(tmp_path: Path) -> None:
+    """SIGKILL leaves the parent no cleanup: the workers' parent-death signal stops them."""
+    parent, workers = _start_sleepers(tmp_path)
+    parent.kill()
+    parent.communicate(timeout=30)
+    assert _gone_within(workers, 10)
