@@ -67,6 +67,27 @@ class PerFrameConstant(ConstantDouble):
     per_frame = True
 
 
+STOP_AT_FIT: list[int] = []  # when set, the fit with this number (1-based, counted in CALLS) raises KeyboardInterrupt
+
+
+class RandomDouble(ConstantDouble):
+    """The mean colour plus noise drawn from Python's, NumPy's and torch's global generators: a resumed seed gives the
+    uninterrupted numbers only if the task restores all three."""
+
+    def fit(self, verts, cells, mesh_pos, images, cameras) -> dict[str, float]:
+        if STOP_AT_FIT and len(CALLS["fit"]) + 1 == STOP_AT_FIT[0]:
+            raise KeyboardInterrupt("test interrupt")
+        super().fit(verts, cells, mesh_pos, images, cameras)
+        import random
+
+        self.colour = self.colour + 0.05 * (random.random() + np.random.rand(3) + torch.rand(3).numpy())
+        return {"noise": float(self.colour.sum())}
+
+
+class RandomPerFrame(RandomDouble):
+    per_frame = True
+
+
 class Doubles:
     """A plugin registering the doubles through the renderer hook, as a third-party package would."""
 
@@ -80,6 +101,8 @@ class Doubles:
             PluginSpec(name="constant", description="mean colour", build=lambda cfg, ctx: ConstantDouble()),
             PluginSpec(name="perframe", description="mean colour per frame", build=lambda cfg, ctx: PerFrameConstant()),
             PluginSpec(name="broken", description="wrong shape", build=lambda cfg, ctx: BrokenDouble()),
+            PluginSpec(name="random", description="mean colour plus noise", build=lambda cfg, ctx: RandomDouble()),
+            PluginSpec(name="randomframe", description="per frame, plus noise", build=lambda cfg, ctx: RandomPerFrame()),
         ]
 
 
@@ -233,3 +256,50 @@ def test_nvs_errors(tiny_root: Path, tmp_path: Path) -> None:
         _run(tiny_root, tmp_path, "constant", "task_config.nvs.stride=2")
     with pytest.raises(ClodsError, match="needs a renderer"):
         run_task(tiny_config(tiny_root, f"runs_dir={tmp_path / 'r2'}", task="nvs"), _registry(tiny_config(tiny_root)))
+
+
+@pytest.mark.parametrize(("renderer", "stop_at", "fits_after"), [("randomframe", 5, 5), ("random", 2, 2)])
+def test_an_interrupted_seed_resumes_with_the_uninterrupted_numbers(
+    tiny_root: Path, tmp_path: Path, renderer: str, stop_at: int, fits_after: int
+) -> None:
+    """Per-frame renderers resume at the frame, the others at the trajectory (3 trajectories x 3 frames here); the
+    record, curves, per-trajectory scores and grid equal those of a run that was never stopped."""
+    from clods_bench.benchmark.tasks.nvs import PARTIAL_FILE
+
+    opts = ("task_config.nvs.num_frames=3", "task_config.nvs.lpips=false")
+    whole, whole_dir, _ = _run(tiny_root, tmp_path / "whole", renderer, *opts)
+    STOP_AT_FIT[:] = [stop_at]
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _run(tiny_root, tmp_path / "parts", renderer, *opts)
+    finally:
+        STOP_AT_FIT.clear()
+    seed_dir = next((tmp_path / "parts" / "runs").rglob("seed_0"))
+    assert (seed_dir / PARTIAL_FILE).is_file() and not (seed_dir / "result.json").exists()
+    resumed, resumed_dir, _ = _run(tiny_root, tmp_path / "parts", renderer, *opts)
+    assert len(CALLS["fit"]) == fits_after  # what was scored before the stop was not fitted again
+    a, b = whole["per_seed"]["0"], resumed["per_seed"]["0"]
+    assert a["metrics"] == b["metrics"] and a["extra"]["per_trajectory"] == b["extra"]["per_trajectory"]
+    assert a["timings"]["fit/noise"] == b["timings"]["fit/noise"] and a["extra"]["fits"] == b["extra"]["fits"]
+    ca = json.loads((whole_dir / "seed_0" / "result.json").read_text())["curves"]
+    cb = json.loads((resumed_dir / "seed_0" / "result.json").read_text())["curves"]
+    assert ca == cb
+    np.testing.assert_array_equal(iio.imread(whole_dir / "seed_0" / GRID_FILE), iio.imread(resumed_dir / "seed_0" / GRID_FILE))
+    assert not (resumed_dir / "seed_0" / PARTIAL_FILE).exists()
+
+
+def test_a_damaged_resume_file_is_one_clear_error(tiny_root: Path, tmp_path: Path) -> None:
+    from clods_bench.benchmark.tasks.nvs import PARTIAL_FILE
+
+    opts = ("task_config.nvs.num_frames=3", "task_config.nvs.lpips=false")
+    STOP_AT_FIT[:] = [2]
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _run(tiny_root, tmp_path, "randomframe", *opts)
+    finally:
+        STOP_AT_FIT.clear()
+    partial = next((tmp_path / "runs").rglob(PARTIAL_FILE))
+    partial.write_bytes(partial.read_bytes()[:100])  # truncated
+    with pytest.raises(ClodsError, match="cannot read the NVS resume file") as err:
+        _run(tiny_root, tmp_path, "randomframe", *opts)
+    assert str(partial) in str(err.value) and "delete it" in str(err.value)

@@ -15,18 +15,25 @@ whose object has `per_frame = True`: it is fitted anew on every scored frame.
 On a dataset without meshes (imported from video) only per-frame renderers run: each frame's proxy geometry is the
 bounding box of the foreground's visual hull in the training views (`datasets.visual_hull`), in which 3DGS places
 its Gaussians (`renderer_config.gs3d.init=random` fills the box; the default 'visible' samples its faces).
+
+Resumable: the scores so far, the timings and the random-number state are written to `nvs_partial.pt` in the seed's
+folder after every trajectory (after every frame for a per-frame renderer, whose fits take seconds to minutes each), so
+an interrupted seed goes on where it stopped and ends with the numbers of an uninterrupted one.
 """
 
 from __future__ import annotations
 
+import random
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from rich.progress import Progress
 
+from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
@@ -37,6 +44,8 @@ from clods_bench.datasets.visual_hull import box_mesh, hull_box
 from clods_bench.errors import ClodsError
 
 GRID_FILE = "nvs_grid.png"
+PARTIAL_FILE = "nvs_partial.pt"
+PARTIAL_FORMAT = 1
 METRICS = ("psnr", "ssim", "lpips")
 
 
@@ -94,6 +103,51 @@ def _to_float(frames: np.ndarray) -> np.ndarray:
     return np.asarray(frames, dtype=np.float32) / 255.0
 
 
+def _rng_state() -> dict[str, Any]:
+    """Python's, NumPy's and torch's global generators (CUDA's too once used), as tensors and plain values."""
+    np_state = np.random.get_state()
+    state = {
+        "python": [random.getstate()[0], list(random.getstate()[1]), random.getstate()[2]],
+        "numpy": [torch.from_numpy(np.asarray(np_state[1], dtype=np.int64)), int(np_state[2]), int(np_state[3]), float(np_state[4])],
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+    keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state(("MT19937", keys.numpy().astype(np.uint32), pos, has_gauss, cached))
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def _save_partial(path: Path, state: dict[str, Any]) -> None:
+    """Write the resume state atomically (a kill mid-write leaves the previous one)."""
+    with atomic_path(path) as tmp:
+        torch.save({**state, "rng": _rng_state()}, tmp)
+
+
+def _load_partial(path: Path, key: dict[str, Any]) -> dict[str, Any] | None:
+    """The resume state written for this seed with the same trajectories, frames, views and LPIPS, else None (a file
+    of an older format or another setting is not used, and is replaced by the next save)."""
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a truncated or foreign file
+        raise ClodsError(f"cannot read the NVS resume file: {type(exc).__name__}: {exc}", where=str(path),
+                         hint="delete it to start this seed again") from None  # fmt: skip
+    if not isinstance(state, dict) or state.get("format") != PARTIAL_FORMAT or state.get("key") != key:
+        return None
+    _set_rng_state(state["rng"])
+    return state
+
+
 def run_nvs(ctx: TaskContext) -> TaskResult:
     """One seed of NVS over the configured trajectories and frames; metrics are means over all scored images."""
     cfg = ctx.config
@@ -120,20 +174,33 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     metric = lpips if isinstance(lpips, LpipsMetric) else None
     torch.manual_seed(ctx.seed)
 
-    scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}  # per (trajectory, frame): (views,) arrays
-    per_traj: dict[str, dict[str, float]] = {}
-    fit_seconds, fits, render_seconds, fit_stats = 0.0, 0, 0.0, []
-    grid: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
     grid_at = set(np.linspace(0, len(frames) - 1, min(opts.grid_frames, len(frames))).round().astype(int).tolist()) if opts.grid_frames else set()
-    per_frame = None
+    partial = ctx.work_dir / PARTIAL_FILE
+    key = {"trajectories": traj_ids, "frames": frames, "train_views": train_idx, "test_views": test_idx,
+           "lpips": metric.source if metric is not None else None}  # fmt: skip
+    state = _load_partial(partial, key) or {
+        "format": PARTIAL_FORMAT,
+        "key": key,
+        "next": [0, 0],  # (position in traj_ids, position in frames) of the next frame to score
+        "scores": {k: [] for k in METRICS},  # per (trajectory, frame): (views,) arrays
+        "traj_scores": {k: [] for k in METRICS},
+        "per_traj": {},
+        "fit_seconds": 0.0, "fits": 0, "render_seconds": 0.0, "lpips_seconds": 0.0, "fit_stats": [],
+        "grid": ([], []),
+        "per_frame": None,
+    }  # fmt: skip
+    done_before = state["next"][0] * len(frames) + state["next"][1]
+    lpips_before = state["lpips_seconds"] - (metric.seconds if metric is not None else 0.0)
+    per_frame = state["per_frame"]
     with Progress(transient=True, disable=not cfg.progress) as bar:
-        job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames))
-        for i in traj_ids:
+        job = bar.add_task(f"nvs ({cfg.renderer})", total=len(traj_ids) * len(frames), completed=done_before)
+        for pos in range(state["next"][0], len(traj_ids)):
+            i = traj_ids[pos]
             traj = None if proxy else store.load_trajectory(i)
             video = _Frames(store.frames(i), sorted({0, *frames}), train_idx + test_idx)  # only the frames and views scored or fitted
-            traj_scores: dict[str, list[np.ndarray]] = {k: [] for k in METRICS}
             renderer = None
-            for n, t in enumerate(frames):
+            for n in range(state["next"][1] if pos == state["next"][0] else 0, len(frames)):
+                t = frames[n]
                 if proxy:  # no meshes: the frame's visual-hull box from the training views
                     verts, cells, mesh_pos = box_mesh(*hull_box(video[t, train_idx], train_cams))
                 else:
@@ -144,24 +211,37 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
                     fit_verts = verts if per_frame else traj.world_pos[0].astype(np.float32)
                     t0 = time.perf_counter()
                     stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
-                    fit_seconds += time.perf_counter() - t0
-                    fits += 1
-                    fit_stats.append(stats or {})
+                    state["fit_seconds"] += time.perf_counter() - t0
+                    state["fits"] += 1
+                    state["fit_stats"].append({k: float(v) for k, v in (stats or {}).items()})
                 t0 = time.perf_counter()
                 with torch.no_grad():
                     out = renderer.render(torch.from_numpy(verts), test_cams)
-                render_seconds += time.perf_counter() - t0
+                state["render_seconds"] += time.perf_counter() - t0
                 pred = as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")
                 gt = _to_float(video[t, test_idx])
                 for k, v in image_scores(pred, gt, metric).items():
-                    scores[k].append(v)
-                    traj_scores[k].append(v)
-                if i == traj_ids[0] and n in grid_at:
-                    grid[0].append(gt)
-                    grid[1].append(pred)
+                    state["scores"][k].append(torch.from_numpy(np.asarray(v)))
+                    state["traj_scores"][k].append(torch.from_numpy(np.asarray(v)))
+                if pos == 0 and n in grid_at:
+                    state["grid"][0].append(torch.from_numpy(np.asarray(gt)))
+                    state["grid"][1].append(torch.from_numpy(np.asarray(pred)))
                 bar.advance(job)
-            per_traj[str(i)] = {k: float(np.mean(v)) for k, v in traj_scores.items() if v}
+                state["per_frame"] = per_frame
+                state["lpips_seconds"] = lpips_before + (metric.seconds if metric is not None else 0.0)
+                if n + 1 == len(frames):
+                    state["per_traj"][str(i)] = {k: float(np.mean(torch.stack(v).numpy())) for k, v in state["traj_scores"].items() if v}
+                    state["traj_scores"] = {k: [] for k in METRICS}
+                    state["next"] = [pos + 1, 0]
+                    _save_partial(partial, state)
+                elif per_frame:
+                    state["next"] = [pos, n + 1]
+                    _save_partial(partial, state)
 
+    scores = {k: [x.numpy() for x in v] for k, v in state["scores"].items()}
+    per_traj, fits, fit_stats = state["per_traj"], state["fits"], state["fit_stats"]
+    fit_seconds, render_seconds = state["fit_seconds"], state["render_seconds"]
+    grid = ([x.numpy() for x in state["grid"][0]], [x.numpy() for x in state["grid"][1]])
     metrics = {k: float(np.mean(v)) for k, v in scores.items() if v}
     images = len(traj_ids) * len(frames) * len(test_cams)
     timings = {
@@ -171,7 +251,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "render_seconds": render_seconds,
     }
     if metric is not None:
-        timings["lpips_seconds"] = metric.seconds
+        timings["lpips_seconds"] = state["lpips_seconds"]
     for key in sorted({k for s in fit_stats for k in s}):
         timings[f"fit/{key}"] = float(np.mean([float(s[key]) for s in fit_stats if key in s]))
     shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
@@ -192,4 +272,6 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "lpips_files": [str(f) for f in metric.files] if metric is not None else [],
         "grid": str(grid_path) if grid_path else None,
     }
-    return TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
+    result = TaskResult(metrics=metrics, timings=timings, curves=curves, extra=extra)
+    partial.unlink(missing_ok=True)  # the runner writes the seed's result next; a kill in between costs a rerun only
+    return result
