@@ -186,14 +186,14 @@ class _term_as_interrupt:
     timeout stop the workers and end with the CLI's 'interrupted' message instead of leaving the workers running."""
 
     def __enter__(self) -> "_term_as_interrupt":
-        self.previous: Any = None
+        self.installed, self.previous = False, None
         if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+            self.previous, self.installed = signal.signal(signal.SIGTERM, _raise_interrupt), True
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
+        if self.installed:  # None: the previous handler was not set from Python, so restore the default
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if self.previous is None else self.previous)
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:

@@ -43,7 +43,11 @@ def _threads_seen(asked: int) -> tuple[int, str | None, int, int]:
 def test_parallel_workers_share_the_cores() -> None:
     import os
 
+    import signal
+
+    before = signal.getsignal(signal.SIGTERM)
     seen = LocalExecutor(jobs=2).map(_threads_seen, [8, 8, 1], progress=False)
+    assert signal.getsignal(signal.SIGTERM) == before  # the driver's SIGTERM handling is put back after the jobs
     cap = max(1, (os.cpu_count() or 1) // 2)
     assert seen == [(cap, str(cap), cap, cap), (cap, str(cap), cap, cap), (cap, str(cap), 1, cap)]  # a config asking for 8 gets the cap
 
