@@ -157,7 +157,10 @@ class LocalExecutor:
                     for fut in as_completed(futures):
                         results[futures[fut]] = fut.result()
                         bar.advance(task)
-            except BaseException:
+            except Exception:  # a failed job: drop the queued ones, let the running ones finish and save their work
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+            except BaseException:  # Ctrl-C, SIGTERM: stop now
                 stop_workers(pool)
                 raise
         pool.shutdown(wait=True)

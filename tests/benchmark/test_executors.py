@@ -229,7 +229,7 @@ def _gone_within(pids: list[int], seconds: float) -> bool:
     return True
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads worker states from /proc and relies on the Linux parent-death signal")
 def test_sigterm_to_the_parent_stops_running_workers(tmp_path: Path) -> None:
     """`kill <reproduce pid>` used to leave the workers computing on alone, for hours (a per-frame 3DGS job)."""
     import signal
@@ -244,10 +244,29 @@ def test_sigterm_to_the_parent_stops_running_workers(tmp_path: Path) -> None:
     assert _gone_within(workers, 10)
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads worker states from /proc and relies on the Linux parent-death signal")
 def test_workers_die_with_a_killed_parent(tmp_path: Path) -> None:
     """SIGKILL leaves the parent no cleanup: the workers' parent-death signal stops them."""
     parent, workers = _start_sleepers(tmp_path)
     parent.kill()
     parent.communicate(timeout=30)
     assert _gone_within(workers, 10)
+
+
+def _fail_or_finish(arg: tuple[str, str]) -> str:
+    """Job double: 'fail' raises at once; 'slow' sleeps 3 s, then leaves a file saying it finished."""
+    import time
+
+    kind, folder = arg
+    if kind == "fail":
+        raise ClodsError("job failed on purpose", where="test")
+    time.sleep(3)
+    (Path(folder) / "finished").write_text("")
+    return kind
+
+
+def test_a_failed_job_lets_the_running_ones_finish(tmp_path: Path) -> None:
+    """Only an interrupt terminates running workers; a job's own error ends the map after the others saved their work."""
+    with pytest.raises(ClodsError, match="failed on purpose"):
+        LocalExecutor(jobs=2).map(_fail_or_finish, [("slow", str(tmp_path)), ("fail", str(tmp_path))], progress=False)
+    assert (tmp_path / "finished").exists()

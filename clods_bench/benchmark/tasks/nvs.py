@@ -105,9 +105,9 @@ def _to_float(frames: np.ndarray) -> np.ndarray:
 
 def _rng_state() -> dict[str, Any]:
     """Python's, NumPy's and torch's global generators (CUDA's too once used), as tensors and plain values."""
-    np_state = np.random.get_state()
+    np_state, (version, internal, gauss) = np.random.get_state(), random.getstate()
     state = {
-        "python": [random.getstate()[0], list(random.getstate()[1]), random.getstate()[2]],
+        "python": [version, list(internal), gauss],
         "numpy": [torch.from_numpy(np.asarray(np_state[1], dtype=np.int64)), int(np_state[2]), int(np_state[3]), float(np_state[4])],
         "torch": torch.get_rng_state(),
     }
