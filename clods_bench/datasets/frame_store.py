@@ -338,6 +338,8 @@ class LazyFrames(FrameArray):
                                  where=str(path), hint=_HINT)  # fmt: skip
         try:
             block = np.asarray(self._array[first * k : min((last + 1) * k, self.shape[0]), view])
+        except ImportError as exc:  # a codec's library is missing: the chunks are fine, the install is not
+            raise ClodsError(f"cannot decode the frames: {exc}", where=str(self.path), hint="pip install imagecodecs") from None
         except Exception:  # zarr: ValueError on a crc32c mismatch, codec errors on truncated data; find the chunk
             for tc in range(first, last + 1):
                 self._chunk(tc, view)

@@ -88,3 +88,17 @@ def test_stores_of_the_earlier_codec_still_read(tmp_path):
     chunk.write_bytes(chunk.read_bytes()[:-3])  # a damaged legacy chunk still fails naming its file
     with pytest.raises(ClodsError, match="c.1.0.0.0.0"):
         lazy[:, 0]
+
+
+def test_missing_imagecodecs_is_one_clear_error(tmp_path, monkeypatch):
+    from clods_bench.datasets import jpegls_codec
+
+    write_frames(tmp_path / "f.zarr", images(k=2).repeat(2, axis=1), chunk_frames=2)
+
+    def missing():
+        raise ImportError("frames stored with JPEG-LS need the 'imagecodecs' package: pip install imagecodecs")
+
+    monkeypatch.setattr(jpegls_codec, "_imagecodecs", missing)
+    with pytest.raises(ClodsError, match="imagecodecs") as info:
+        LazyFrames(tmp_path / "f.zarr")[:, 0]
+    assert "f.zarr" in str(info.value) and "crc32c" not in str(info.value)
