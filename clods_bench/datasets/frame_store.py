@@ -173,9 +173,9 @@ def frames_record(path: Path, shape: Sequence[int], name: str | None = None) -> 
 
 def _codec_name(array: Any) -> str:
     """The manifest's name for an array's codec pipeline: this version's, or that of stores written before it."""
-    names = [c.get("name") for c in array.metadata.to_dict().get("codecs", [])]
     from clods_bench.datasets.jpegls_codec import NAME
 
+    names = [c.get("name") for c in array.metadata.to_dict().get("codecs", [])]
     return CODEC_NAME if names and names[0] == NAME else LEGACY_CODEC_NAME
 
 

@@ -90,10 +90,12 @@ class JpegLsCodec(ArrayBytesCodec):
             raise ValueError(f"{NAME} stores uint8 RGB images (..., H, W, 3), not {native} of shape {tuple(shape)}")
 
     def compute_encoded_size(self, input_byte_length: int, chunk_spec: "ArraySpec") -> int:
-        raise NotImplementedError  # variable-sized output
+        # zarr's contract for codecs whose output size depends on the data (its blosc and zstd codecs do the same):
+        # the size is unknown until encoded, and zarr only asks fixed-size codecs (`is_fixed_size`) for it
+        raise NotImplementedError
 
     def _decode_sync(self, chunk_bytes: Buffer, chunk_spec: "ArraySpec") -> NDBuffer:
-        images = decode_images(chunk_bytes.as_numpy_array().tobytes(), tuple(chunk_spec.shape))
+        images = decode_images(memoryview(chunk_bytes.as_numpy_array()), tuple(chunk_spec.shape))  # no copy
         return chunk_spec.prototype.nd_buffer.from_numpy_array(images)
 
     async def _decode_single(self, chunk_bytes: Buffer, chunk_spec: "ArraySpec") -> NDBuffer:
