@@ -42,9 +42,11 @@ watch_files() {
 }
 watch_files > >(tee -a "$OUT/stages.txt") &
 watcher=$!
-# On exit, finished or stopped by a time limit: how far stage 2 got, from its per-frame partial saves.
+# On exit, finished or stopped by a time limit: how far stage 2 got, from its per-frame partial saves, and its E-GT
+# curve against the dataset's true meshes.
 here=$(cd "$(dirname "$0")" && pwd)
-trap 'kill $watcher 2>/dev/null || true; python3 "$here/stage2_progress.py" "$OUT/runs" 2>&1 | tee -a "$OUT/log.txt"' EXIT
+trap 'kill $watcher 2>/dev/null || true; ds=$(ls -d "$OUT"/data/*/ 2>/dev/null | head -1)
+      python3 "$here/stage2_progress.py" "$OUT/runs" ${ds:+--data "$ds"} 2>&1 | tee -a "$OUT/log.txt"' EXIT
 /usr/bin/time -f "run cdg, CloDS* (stages 1-3, rollouts, scoring): %e s wall" clods-bench run cdg --sim mgn --renderer smgs \
   --train-subset first_half "${common[@]}" --set seeds=[0] --set runs_dir="$OUT/runs" --label "CloDS* (one paper-size trajectory)" \
   --set renderer_config.smgs.backend="$BACKEND" --set renderer_config.smgs.device="$DEVICE" --set sim_config.mgn.device="$SIM_DEVICE" \

@@ -14,6 +14,9 @@ def test_presets_exist_and_load() -> None:
     assert paper.data.resolution == "flagsimple"
     assert (paper.data.num_train, paper.data.num_test, paper.data.num_steps, paper.data.interp_steps) == (100, 20, 401, 300)
     assert paper.data.num_cameras == 30
+    # stage 2 at paper size: the larger step and the progress rule (measured there), not the ci/small defaults
+    assert paper.task_config["clods"] == {"learning_rate": 0.01, "stop_requires_progress": True}
+    assert "stop_requires_progress" not in load_config("ci").task_config["clods"]
 
 
 def test_overrides_are_typed() -> None:

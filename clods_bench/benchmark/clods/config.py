@@ -55,6 +55,11 @@ class ClodsConfig:
     """Converged when the loss has not dropped below (1 - rel_tolerance) times its best for `patience` iterations."""
     patience: int = 6
     """See `rel_tolerance`."""
+    stop_requires_progress: bool = False
+    """If true, the convergence test cannot end a frame before an iteration has beaten the start guess's loss: when
+    Adam's first steps (about `learning_rate` on every coordinate) overshoot, the default test stops at
+    `min_iterations` and keeps the unfitted start guess, and on fast motion the next frame's velocity start then
+    compounds the miss (README "Stage 2 on fast motion"). False keeps the rule the committed tables were made with."""
     learning_rate: float = 0.003
     """Adam step size (m) of the vertex offsets; it decays exponentially to `lr_final_factor` of itself over the cap."""
     lr_final_factor: float = 0.2
@@ -121,6 +126,8 @@ class ClodsConfig:
         for key in ("variant", "cache_dir", "num_threads", "read_ahead", "sim_overrides", "extraction_seed"):
             d.pop(key)
         d["scale_range"] = list(d["scale_range"])
+        if not self.stop_requires_progress:  # keys of extractions made before the option existed stay what they were
+            d.pop("stop_requires_progress")
         if self.initial_mesh == "truth":  # keys of extractions from the true mesh stay what they were
             for key in ("initial_mesh", "stage0"):
                 d.pop(key)

@@ -5,7 +5,8 @@ simulator's one-step prediction: the predict step of Cloth-Splatting's filter), 
 offsets with Adam so that the render on the training cameras matches frame t+1 under
 L1 + gamma * L_edge, edge lengths held to the initial mesh's. Non-NORMAL (handle) nodes stay at
 their initial positions. A frame stops at the iteration cap or when the loss has not improved by
-`rel_tolerance` for `patience` iterations; the lowest-loss mesh seen is kept.
+`rel_tolerance` for `patience` iterations (with `stop_requires_progress`, only once some iteration has
+beaten the start's loss); the lowest-loss mesh seen is kept.
 """
 
 from __future__ import annotations
@@ -85,6 +86,7 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
     offset = torch.zeros_like(start, requires_grad=True)
     opt = torch.optim.Adam([offset], lr=cfg.learning_rate)
     best, best_x, best_seen, stale, it = math.inf, start.detach().clone(), math.inf, 0, 0
+    start_loss, progressed = math.inf, not cfg.stop_requires_progress
     for it in range(1, cfg.iterations + 1):
         for group in opt.param_groups:
             group["lr"] = cfg.learning_rate * cfg.lr_final_factor ** ((it - 1) / max(cfg.iterations - 1, 1))
@@ -97,11 +99,15 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
             raise ClodsError(f"stage-2 loss became {value} at iteration {it}", where="clods stage 2", hint="lower task_config.clods.learning_rate")
         if value < best_seen:
             best_seen, best_x = value, x.detach().clone()
+        if it == 1:
+            start_loss = value
+        elif not progressed and value < start_loss * (1.0 - cfg.rel_tolerance):
+            progressed = True
         if value < best * (1.0 - cfg.rel_tolerance):
             best, stale = value, 0
         else:
             stale += 1
-        if it >= max(cfg.min_iterations, 1) and stale >= cfg.patience:
+        if it >= max(cfg.min_iterations, 1) and stale >= cfg.patience and progressed:
             break
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -117,3 +117,47 @@ def test_frame_target_on_the_cpu_is_the_hosts_float32_division_and_the_device_is
     assert renderer_device(SimpleNamespace()) == torch.device("cpu")
     assert renderer_device(SimpleNamespace(device=torch.device("meta"))) == torch.device("meta")
     assert renderer_device(SimpleNamespace(device="cuda")) == torch.device("cpu")  # not a torch.device: not trusted
+
+
+class LinearRenderer:
+    """An 'image' that is the vertex coordinates themselves: the L1 loss is the mean distance to the target mesh."""
+
+    def render(self, verts: torch.Tensor, cameras) -> torch.Tensor:
+        return verts[None, None]
+
+
+def _overshoot_case():
+    """Start 1 mm from the target on every coordinate, step 3 mm: Adam's first step overshoots and the next few
+    iterations stay worse than the start (the fast-motion failure of stage 2 in miniature)."""
+    cells = np.array([[0, 1, 2], [1, 3, 2]])
+    nt = np.full(4, NORMAL)
+    start = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    signs = np.array([[1, -1, 1], [-1, 1, 1], [1, 1, -1], [-1, -1, -1]], np.float32)
+    target = torch.from_numpy(start + 0.001 * signs)[None, None]
+    prior = MeshPrior.from_mesh(start, cells, nt)
+    cfg = ClodsConfig(iterations=40, min_iterations=2, patience=2, learning_rate=0.003, gamma=0.0)
+    return start, target, prior, cfg
+
+
+def test_default_early_stop_keeps_the_unfitted_start_when_the_first_steps_overshoot():
+    start, target, prior, cfg = _overshoot_case()
+    fit = fit_frame(LinearRenderer(), [None], target, torch.from_numpy(start), prior, cfg)
+    assert fit.iterations == 3  # min_iterations 2, then two iterations without progress: stopped
+    np.testing.assert_array_equal(fit.verts, start)  # the start guess itself is what is kept
+    assert fit.loss == pytest.approx(0.001, rel=1e-4)
+
+
+def test_stop_requires_progress_fits_the_frame_instead():
+    start, target, prior, cfg = _overshoot_case()
+    cfg = dataclasses.replace(cfg, stop_requires_progress=True)
+    fit = fit_frame(LinearRenderer(), [None], target, torch.from_numpy(start), prior, cfg)
+    truth = target[0, 0].numpy()
+    assert 3 < fit.iterations < cfg.iterations  # went on past the overshoot, then converged by the usual test
+    assert fit.loss < 0.8 * 0.001, fit.loss  # better than the start (0.001), which the default rule keeps
+    assert rms(fit.verts, truth) < 0.8 * rms(start, truth)
+    # an ordinary frame (the first step already helps) stops exactly as without the option
+    far = torch.from_numpy(start + 0.05)[None, None]
+    a = fit_frame(LinearRenderer(), [None], far, torch.from_numpy(start), prior, dataclasses.replace(cfg, stop_requires_progress=False))
+    b = fit_frame(LinearRenderer(), [None], far, torch.from_numpy(start), prior, cfg)
+    assert a.iterations == b.iterations
+    np.testing.assert_array_equal(a.verts, b.verts)

@@ -146,3 +146,8 @@ def test_start_simulator_key_names_the_pretrained_fit():
     with pytest.raises(ClodsError) as err:
         _key(SIM, None)
     assert err.value.where == "task_config.clods.start"
+
+
+def test_stop_requires_progress_is_part_of_the_cache_key_only_when_set():
+    assert _key(ClodsConfig(stop_requires_progress=False)) == MAIN_DIGESTS["default"][0]
+    assert _key(ClodsConfig(stop_requires_progress=True)) != MAIN_DIGESTS["default"][0]
