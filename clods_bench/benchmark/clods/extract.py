@@ -86,7 +86,7 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
     offset = torch.zeros_like(start, requires_grad=True)
     opt = torch.optim.Adam([offset], lr=cfg.learning_rate)
     best, best_x, best_seen, stale, it = math.inf, start.detach().clone(), math.inf, 0, 0
-    start_loss, progressed = math.inf, not cfg.stop_requires_progress
+    progressed = not cfg.stop_requires_progress  # until an iteration beats the start, `best` is the start's loss
     for it in range(1, cfg.iterations + 1):
         for group in opt.param_groups:
             group["lr"] = cfg.learning_rate * cfg.lr_final_factor ** ((it - 1) / max(cfg.iterations - 1, 1))
@@ -99,12 +99,8 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
             raise ClodsError(f"stage-2 loss became {value} at iteration {it}", where="clods stage 2", hint="lower task_config.clods.learning_rate")
         if value < best_seen:
             best_seen, best_x = value, x.detach().clone()
-        if it == 1:
-            start_loss = value
-        elif not progressed and value < start_loss * (1.0 - cfg.rel_tolerance):
-            progressed = True
         if value < best * (1.0 - cfg.rel_tolerance):
-            best, stale = value, 0
+            best, stale, progressed = value, 0, progressed or it > 1
         else:
             stale += 1
         if it >= max(cfg.min_iterations, 1) and stale >= cfg.patience and progressed:
