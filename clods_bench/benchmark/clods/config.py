@@ -80,6 +80,12 @@ class ClodsConfig:
     read_ahead: bool = True
     """Stage 2 reads frame t+1 in a background thread while it fits frame t (`clods.prefetch`): hides most of the
     CPU rasterizer's reads when frames are rendered on demand and the fit runs on a GPU. Same meshes either way."""
+    smooth_window: int = 0
+    """Stage 3 learns from the extracted meshes filtered in time by a Savitzky-Golay filter over this many frames (odd,
+    >= 3; `clods.smooth`): stage 2's frame-to-frame noise, which the accelerations stage 3 learns amplify, is cut. 0
+    (the default, and the paper) hands stage 3 the meshes as extracted. Not part of the extraction's cache key."""
+    smooth_order: int = 2
+    """Degree of the smoothing polynomial (1 <= smooth_order < smooth_window)."""
     sim_overrides: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_SIM_OVERRIDES))
     """Stage 3: options laid over `sim_config.<sim>` for learned simulators. The keys given are laid over the default
     (paper eq. 8: the 8-step rollout loss), so setting one key (e.g. `train_steps`) keeps that loss; `loss: one_step`
@@ -117,13 +123,17 @@ class ClodsConfig:
                 raise ClodsError("the reconstructed initial mesh takes no ground-truth noise", where=f"{WHERE}.init_noise", hint="leave it at 'none'")
             if self.start == "simulator":
                 raise ClodsError("start=simulator predicts on the true mesh's topology, not the reconstructed one's", where=f"{WHERE}.start")
+        if self.smooth_window != 0 and (self.smooth_window < 3 or self.smooth_window % 2 == 0):
+            raise ClodsError(f"must be 0 (off) or an odd number of frames >= 3, got {self.smooth_window}", where=f"{WHERE}.smooth_window")
+        if self.smooth_window and not 1 <= self.smooth_order < self.smooth_window:
+            raise ClodsError(f"must be in [1, smooth_window={self.smooth_window}), got {self.smooth_order}", where=f"{WHERE}.smooth_order")
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads}", where=f"{WHERE}.num_threads")
 
     def extraction_identity(self) -> dict[str, Any]:
         """The fields that change the extracted meshes (part of the cache key); stage-3 and bookkeeping fields are left out."""
         d = dataclasses.asdict(self)
-        for key in ("variant", "cache_dir", "num_threads", "read_ahead", "sim_overrides", "extraction_seed"):
+        for key in ("variant", "cache_dir", "num_threads", "read_ahead", "sim_overrides", "extraction_seed", "smooth_window", "smooth_order"):
             d.pop(key)
         d["scale_range"] = list(d["scale_range"])
         if not self.stop_requires_progress:  # keys of extractions made before the option existed stay what they were

@@ -22,6 +22,7 @@ from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.noise import initial_mesh
 from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.predict import OneStepPredictor
+from clods_bench.benchmark.clods.smooth import smooth_meshes, smoothing_tag
 from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, train_simulator
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.interfaces import Simulator
@@ -178,14 +179,18 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     stats = dict(ext.stats)
     if ids and pretrained is None:  # the other starts pretrain after stage 2, as they always have
         pretrained = pretrain_simulator(ctx, ids)
-    sim, sim_stats = train_simulator(ctx, opts, ext.meshes, ext.key, pretrained)
+    meshes = smooth_meshes(ext.meshes, opts.smooth_window, opts.smooth_order)
+    same = [(m, g) for m, g in zip(meshes, ext.truth) if m.world_pos.shape == g.world_pos.shape]  # not with reconstructed meshes
+    if opts.smooth_window and same:  # E-GT of what stage 3 learns from (egt_rmse stays stage 2's own)
+        stats["egt_smoothed_rmse"] = float(np.mean([rmse_per_step(m.world_pos, g.world_pos, cloth_nodes(g.node_type))[1:].mean() for m, g in same]))
+    sim, sim_stats = train_simulator(ctx, opts, meshes, ext.key + smoothing_tag(opts.smooth_window, opts.smooth_order), pretrained)
     stats.update(sim_stats)
     parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")
     stats["cost_seconds"] = float(sum(v for v in (stats.get(k, 0.0) for k in parts) if math.isfinite(v)))  # a cache without its cost counts 0
     if ext.egt is None:  # a dataset without meshes: no E-GT
-        return PipelineResult(sim, stats, [], {}, ext.meshes, ext.truth, ext.renderers)
+        return PipelineResult(sim, stats, [], {}, meshes, ext.truth, ext.renderers)
     per_traj = {str(i): float(c[1:].mean()) for i, c in zip(train_ids, ext.egt)}
-    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj, ext.meshes, ext.truth, ext.renderers)
+    return PipelineResult(sim, stats, ext.egt.mean(axis=0).tolist(), per_traj, meshes, ext.truth, ext.renderers)
 
 
 def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequence[Trajectory]) -> dict[str, list[float]]:
