@@ -59,7 +59,8 @@ class ClodsConfig:
     """If true, the convergence test cannot end a frame before an iteration has beaten the start guess's loss: when
     Adam's first steps (about `learning_rate` on every coordinate) overshoot, the default test stops at
     `min_iterations` and keeps the unfitted start guess, and on fast motion the next frame's velocity start then
-    compounds the miss (README "Stage 2 on fast motion"). False keeps the rule the committed tables were made with."""
+    compounds the miss (README "The CloDS pipeline", the paragraph on fast motion). False keeps the rule the committed
+    tables were made with."""
     learning_rate: float = 0.003
     """Adam step size (m) of the vertex offsets; it decays exponentially to `lr_final_factor` of itself over the cap."""
     lr_final_factor: float = 0.2
