@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from clods_bench.atomic import atomic_path
+
 
 def load_curve(path: Path) -> np.ndarray:
     """The E-GT curve (m per frame) of one result.json; a clear error when the record has none."""
@@ -66,8 +68,8 @@ def main() -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=120)
+    with atomic_path(args.out) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
     print(f"wrote {args.out}")
 
 

@@ -180,9 +180,10 @@ def run_pipeline(ctx: TaskContext, train_ids: Sequence[int]) -> PipelineResult:
     if ids and pretrained is None:  # the other starts pretrain after stage 2, as they always have
         pretrained = pretrain_simulator(ctx, ids)
     meshes = smooth_meshes(ext.meshes, opts.smooth_window, opts.smooth_order)
-    same = [(m, g) for m, g in zip(meshes, ext.truth) if m.world_pos.shape == g.world_pos.shape]  # not with reconstructed meshes
-    if opts.smooth_window and same:  # E-GT of what stage 3 learns from (egt_rmse stays stage 2's own)
-        stats["egt_smoothed_rmse"] = float(np.mean([rmse_per_step(m.world_pos, g.world_pos, cloth_nodes(g.node_type))[1:].mean() for m, g in same]))
+    if opts.smooth_window:  # E-GT of what stage 3 learns from (egt_rmse stays stage 2's own); not with reconstructed meshes
+        same = [(m, g) for m, g in zip(meshes, ext.truth) if m.world_pos.shape == g.world_pos.shape]
+        if same:
+            stats["egt_smoothed_rmse"] = float(np.mean([rmse_per_step(m.world_pos, g.world_pos, cloth_nodes(g.node_type))[1:].mean() for m, g in same]))
     sim, sim_stats = train_simulator(ctx, opts, meshes, ext.key + smoothing_tag(opts.smooth_window, opts.smooth_order), pretrained)
     stats.update(sim_stats)
     parts = ("stage1_cost_seconds", "stage2_seconds", "pretrain_cost_seconds", "stage3_cost_seconds")

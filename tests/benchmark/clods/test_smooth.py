@@ -3,6 +3,7 @@ polynomial per window, exact on polynomials, noise cut on accelerations, fixed f
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.pipeline import extraction_identity
 from clods_bench.benchmark.clods.smooth import savgol_positions, smooth_meshes, smoothing_tag
+from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.runner import run_task
 from clods_bench.datasets.types import HANDLE, NORMAL, Trajectory
@@ -87,10 +89,6 @@ def test_a_cdg_run_with_smoothing_trains_on_smoothed_meshes_and_reports_both_err
     assert clods_config(cfg).smooth_window == 5
     run_task(cfg, default_registry())
     plain = run_task(tiny_config(tiny_root, *fast, sim="constvel", renderer="games"), default_registry())
-    import json
-
-    from clods_bench.benchmark.records import RECORD_FILE
-
     timings = json.loads((plain / RECORD_FILE).read_text())["per_seed"]["0"]["timings"]
     assert "fit/egt_smoothed_rmse" not in timings
     smoothed_dir = next(p.parent for p in tmp_path.glob("cdg/*/*/" + RECORD_FILE) if p.parent != plain)
