@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 from rich.console import Console
 from rich.table import Table
 
 from clods_bench.errors import ClodsError
+
+if TYPE_CHECKING:
+    from clods_bench.benchmark.config import RunConfig
 
 console = Console()
 err_console = Console(stderr=True, soft_wrap=True)
@@ -371,12 +375,17 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             plan.tables = [t for t in plan.tables if t.id in args.only]
         runs = build_configs(plan, args.preset, _registry(), overrides, first_seeds=args.first_seeds)
         table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
-        for col in ("table / label", "task", "plugins", "seeds", "overrides"):
+        for col in ("table / label", "task", "plugins", "seeds", "done", "overrides"):
             table.add_column(col)
-        for run, cfg in runs:
+        rdirs = _record_dirs(runs)
+        finished = _finished_seeds(runs, rdirs)
+        for (run, cfg), done in zip(runs, finished):
             plugins = "+".join(p for p in (cfg.sim, cfg.renderer, getattr(cfg, "predictor", None)) if p)
-            table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), " ".join(run_overrides(run)))
+            table.add_row(run_name(run), run.task, plugins, str(cfg.seeds), ",".join(map(str, done)) or "-", " ".join(run_overrides(run)))
         console.print(table)
+        # Rows of one config (a table reusing another's run) share their record: count each (config, seed) once.
+        jobs = {(str(rdir), seed): seed in done for (_, cfg), done, rdir in zip(runs, finished, rdirs) for seed in cfg.seeds}
+        console.print(f"{sum(jobs.values())} of {len(jobs)} seed jobs have records under {runs[0][1].runs_dir if runs else '-'}; {len(jobs) - sum(jobs.values())} to run")
         return 0
     manifest = reproduce(
         args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs, args.first_seeds
@@ -387,6 +396,32 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         skip = SEED_SPREAD_COLUMNS if args.first_seeds is not None else ()
         return _report_comparison(args.check, out, None, skip)
     return 0
+
+
+def _record_dirs(runs: Sequence[tuple[Any, RunConfig]]) -> list[Path]:
+    """Each run's record folder as `reproduce` resolves it: a row whose config differs from an earlier row's only in
+    its label reads that row's record; plugin defaults filled, paths absolute."""
+    from clods_bench.benchmark.executors import absolute_paths
+    from clods_bench.benchmark.records import record_dir
+    from clods_bench.benchmark.reproduce import config_identity
+    from clods_bench.benchmark.runner import resolve_plugin_configs
+
+    registry = _registry()
+    canonical: dict[str, Path] = {}
+    dirs = []
+    for _, cfg in runs:
+        key = config_identity(cfg)
+        if key not in canonical:
+            canonical[key] = record_dir(resolve_plugin_configs(absolute_paths(copy.deepcopy(cfg)), registry))
+        dirs.append(canonical[key])
+    return dirs
+
+
+def _finished_seeds(runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path]) -> list[list[int]]:
+    """The seeds of each run whose results are recorded already in its record folder (what `reproduce` would skip)."""
+    from clods_bench.benchmark.records import load_seed_result
+
+    return [[int(s) for s in cfg.seeds if load_seed_result(rdir, int(s)) is not None] for (_, cfg), rdir in zip(runs, rdirs)]
 
 
 SEED_SPREAD_COLUMNS = ("*/std", "seeds")

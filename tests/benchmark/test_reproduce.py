@@ -263,3 +263,20 @@ def test_shape_generalisation_rows_share_table2_and_score_the_cylinder_trained_r
         assert cross.data == same.data and cross.sim_config == same.sim_config and cross.task_config.get("clods") == same.task_config.get("clods")
         assert scored_data(cross, reg) == scored_data(home, reg) == home.data and home.data.scene == "cylinder"
         assert scored_data(cross, reg).dataset_dir() != cross.data.dataset_dir()
+
+
+def test_dry_run_lists_the_seeds_already_recorded(tmp_path: Path, tiny_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--dry-run` says which (run, seed) jobs a resumed `reproduce` would skip; a row reusing another's config counts once."""
+    plan = _plan(tmp_path)
+    sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]
+    assert main(["reproduce", "--plan", str(plan), "--dry-run", *sets]) == 0
+    assert "0 of 4 seed jobs have records" in capsys.readouterr().out and not (tmp_path / "runs").exists()
+    cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / 'runs'}", "seeds=[1]", label="Frozen", sim="frozen")  # one seed of one row, run directly
+    run_task(cfg, default_registry(), ensure_data=ensure_complete_dataset)
+    assert main(["reproduce", "--plan", str(plan), "--dry-run", *sets]) == 0
+    out = capsys.readouterr().out
+    assert "1 of 4 seed jobs have records" in out and "3 to run" in out
+    assert main(["reproduce", "--plan", str(plan), "--out", str(tmp_path / "out"), *sets]) == 0
+    capsys.readouterr()
+    assert main(["reproduce", "--plan", str(plan), "--dry-run", *sets]) == 0
+    assert "4 of 4 seed jobs have records" in capsys.readouterr().out
