@@ -3,7 +3,7 @@
 # (packing them on one GPU gained nothing on the sixth visit), seed 0, through `reproduce` so the records are the
 # plan's. Resumable: a second call on the same warm machine continues from the checkpoints (every 500 steps).
 #
-#   source examples/gpu/device_setup.sh || exit 1; PREDICTORS="simvp" LIMIT=540 bash examples/gpu/video_rows_small.sh
+#   NO_GSPLAT=1 source examples/gpu/device_setup.sh || exit 1; PREDICTORS=simvp LIMIT=520 bash examples/gpu/video_rows_small.sh
 #   DEVICE=cpu PREDICTORS=simvp EXTRA="--set video_config.simvp.train_steps=2" bash examples/gpu/video_rows_small.sh  # plumbing, on a CPU
 #
 # PREDICTORS (default "simvp mau") are plugin names; TABLE is table4_dvc (single-trajectory, Table 4) or table_dvc_multi
