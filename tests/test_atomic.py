@@ -15,7 +15,7 @@ def _mode(path) -> int:
     return stat.S_IMODE(os.stat(path).st_mode)
 
 
-@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+@pytest.mark.skipif(os.name != "posix", reason="Windows files have no POSIX permission bits (os.chmod sets only the read-only flag)")
 def test_new_file_gets_the_mode_of_a_plain_open(tmp_path):
     reference = tmp_path / "plain.txt"
     with open(reference, "w") as fh:  # the independent reference: what the OS gives a new file under this umask
@@ -25,7 +25,7 @@ def test_new_file_gets_the_mode_of_a_plain_open(tmp_path):
     assert _mode(target) == _mode(reference)
 
 
-@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+@pytest.mark.skipif(os.name != "posix", reason="Windows files have no POSIX permission bits (os.chmod sets only the read-only flag)")
 def test_rewrite_keeps_an_existing_files_mode(tmp_path):
     target = tmp_path / "result.json"
     atomic.write_json(target, {"a": 1})

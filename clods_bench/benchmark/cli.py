@@ -373,11 +373,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         if args.only:
             plan.runs = [r for r in plan.runs if r.table in args.only]
             plan.tables = [t for t in plan.tables if t.id in args.only]
-        runs = build_configs(plan, args.preset, _registry(), overrides, first_seeds=args.first_seeds)
+        registry = _registry()
+        runs = build_configs(plan, args.preset, registry, overrides, first_seeds=args.first_seeds)
         table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
         for col in ("table / label", "task", "plugins", "seeds", "done", "overrides"):
             table.add_column(col)
-        rdirs = _record_dirs(runs)
+        rdirs = _record_dirs(runs, registry)
         finished = _finished_seeds(runs, rdirs)
         for (run, cfg), done in zip(runs, finished):
             plugins = "+".join(p for p in (cfg.sim, cfg.renderer, getattr(cfg, "predictor", None)) if p)
@@ -398,23 +399,17 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _record_dirs(runs: Sequence[tuple[Any, RunConfig]]) -> list[Path]:
+def _record_dirs(runs: Sequence[tuple[Any, RunConfig]], registry: Any) -> list[Path]:
     """Each run's record folder as `reproduce` resolves it: a row whose config differs from an earlier row's only in
     its label reads that row's record; plugin defaults filled, paths absolute."""
     from clods_bench.benchmark.executors import absolute_paths
     from clods_bench.benchmark.records import record_dir
-    from clods_bench.benchmark.reproduce import config_identity
+    from clods_bench.benchmark.reproduce import canonical_rows, run_name
     from clods_bench.benchmark.runner import resolve_plugin_configs
 
-    registry = _registry()
-    canonical: dict[str, Path] = {}
-    dirs = []
-    for _, cfg in runs:
-        key = config_identity(cfg)
-        if key not in canonical:
-            canonical[key] = record_dir(resolve_plugin_configs(absolute_paths(copy.deepcopy(cfg)), registry))
-        dirs.append(canonical[key])
-    return dirs
+    canonical, same_as = canonical_rows(runs)
+    dirs = {name: record_dir(resolve_plugin_configs(absolute_paths(copy.deepcopy(cfg)), registry)) for name, cfg in canonical}
+    return [dirs[same_as[run_name(run)]] for run, _ in runs]
 
 
 def _finished_seeds(runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path]) -> list[list[int]]:

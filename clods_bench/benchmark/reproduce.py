@@ -132,6 +132,17 @@ def config_identity(cfg: RunConfig) -> str:
     return json.dumps(d, sort_keys=True, default=str)
 
 
+def canonical_rows(runs: Sequence[tuple[PlanRun, RunConfig]]) -> tuple[list[tuple[str, RunConfig]], dict[str, str]]:
+    """Rows whose configs differ only in their label (e.g. the default SMGS in several tables) run once: the first row
+    of each config as (name, config), and every row's name -> the name of the row that runs for it."""
+    canonical: dict[str, tuple[str, RunConfig]] = {}
+    same_as = {}
+    for run, cfg in runs:
+        first = canonical.setdefault(config_identity(cfg), (run_name(run), cfg))
+        same_as[run_name(run)] = first[0]
+    return list(canonical.values()), same_as
+
+
 def build_configs(
     plan: ReproducePlan,
     preset: str,
@@ -295,13 +306,8 @@ def reproduce(
         plan.runs = [r for r in plan.runs if r.table in only]
     runs = build_configs(plan, preset, registry, overrides, first_seeds=first_seeds)
     executor = make_executor(executor_name, ray_address, jobs)
-    # Rows whose configs differ only in their label (e.g. the default SMGS in several tables) run once.
-    canonical: dict[str, tuple[str, RunConfig]] = {}
-    same_as = {}
-    for run, cfg in runs:
-        first = canonical.setdefault(config_identity(cfg), (run_name(run), cfg))
-        same_as[run_name(run)] = first[0]
-    summaries = {s["name"]: s for s in run_configs(list(canonical.values()), executor, registry, console)}
+    canonical, same_as = canonical_rows(runs)
+    summaries = {s["name"]: s for s in run_configs(canonical, executor, registry, console)}
 
     out_dir = Path(out_dir)
     records: dict[str, dict[str, Any]] = {}
