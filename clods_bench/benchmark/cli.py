@@ -95,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("tables", help="paper-layout tables (markdown, LaTeX, CSV) from run records")
-    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--runs", type=Path, nargs="+", default=[Path("runs")],
+                   help="runs folder(s): the records of several (other machines, committed records) make one table")
     p.add_argument("--out", type=Path, default=Path("tables"))
     p.add_argument("--task", default="all", help="cdg, nvs, stability, dvc, dvc_multi, extract, or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
@@ -336,13 +337,13 @@ def _pm(v: dict) -> str:
 
 
 def cmd_tables(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.records import iter_records
+    from clods_bench.benchmark.records import iter_records, runs_label
     from clods_bench.benchmark.tables import write_tables
 
     if args.task == "all":
         tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "dvc_multi", "extract") if any(True for _ in iter_records(args.runs, t))]
         if not tasks:
-            raise ClodsError("no run records found", where=str(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
+            raise ClodsError("no run records found", where=runs_label(args.runs), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     else:
         tasks = [args.task]
     paths = [p for task in tasks for p in write_tables(args.runs, args.out, task)]

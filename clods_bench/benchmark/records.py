@@ -13,7 +13,7 @@ import re
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.config import RunConfig
@@ -114,18 +114,36 @@ def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], e
     return record
 
 
-def iter_records(runs_dir: Path, task: str | None = None) -> Iterator[tuple[Path, dict[str, Any]]]:
-    """Every readable `record.json` under `runs_dir` (optionally of one task), sorted by path."""
-    root = Path(runs_dir)
-    if not root.is_dir():
-        raise ClodsError("runs directory not found", where=str(root))
-    for path in sorted(root.rglob(RECORD_FILE)):
-        try:
-            rec = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ClodsError(f"malformed record JSON at line {exc.lineno}: {exc.msg}", where=str(path)) from None
-        if task is None or rec.get("task") == task:
-            yield path.parent, rec
+def iter_records(runs_dir: Path | Sequence[Path], task: str | None = None) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """Every readable `record.json` under `runs_dir` (optionally of one task), sorted by path.
+
+    Several folders may be given (runs made on several machines, or committed records beside a fresh
+    `runs_dir`); the same run (record path relative to its folder) found in two of them is an error, since
+    one table row would then come from two records."""
+    roots = [Path(runs_dir)] if isinstance(runs_dir, (str, Path)) else [Path(r) for r in runs_dir]
+    seen: dict[Path, Path] = {}
+    for root in roots:
+        if not root.is_dir():
+            raise ClodsError("runs directory not found", where=str(root))
+        for path in sorted(root.rglob(RECORD_FILE)):
+            rel = path.relative_to(root)
+            if rel in seen:
+                raise ClodsError(
+                    "the same run is recorded in two runs folders", where=f"{seen[rel]} and {path}",
+                    hint="drop one of them from --runs (or delete the stale record)",
+                )  # fmt: skip
+            seen[rel] = path
+            try:
+                rec = json.loads(path.read_text())
+            except json.JSONDecodeError as exc:
+                raise ClodsError(f"malformed record JSON at line {exc.lineno}: {exc.msg}", where=str(path)) from None
+            if task is None or rec.get("task") == task:
+                yield path.parent, rec
+
+
+def runs_label(runs_dir: Path | Sequence[Path]) -> str:
+    """`runs_dir` (one folder or several) as it is named in messages."""
+    return str(runs_dir) if isinstance(runs_dir, (str, Path)) else ", ".join(str(r) for r in runs_dir)
 
 
 def _num(value: Any) -> float:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import pandas as pd
 
 from clods_bench.atomic import write_text
 from clods_bench.benchmark.metrics import GROUPS, PHASES, STATS
-from clods_bench.benchmark.records import iter_records
+from clods_bench.benchmark.records import iter_records, runs_label
 from clods_bench.errors import ClodsError
 
 GROUP_NAMES = {"viewed": "Viewed", "unviewed": "Unviewed"}
@@ -315,13 +315,13 @@ def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.Dat
     return pd.DataFrame(display_rows, index=pd.Index(index, name="Method")), pd.DataFrame(numeric_rows)
 
 
-def write_stability_tables(runs_dir: Path, out_dir: Path) -> list[Path]:
+def write_stability_tables(runs_dir: Path | Sequence[Path], out_dir: Path) -> list[Path]:
     """One markdown/LaTeX/CSV stability table per preset, rows per (simulator, scene)."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for _, rec in iter_records(runs_dir, "stability"):
         groups.setdefault(rec["preset"], []).append(rec)
     if not groups:
-        raise ClodsError("no 'stability' run records found", where=str(runs_dir), hint="run e.g. `clods-bench run stability --sim constvel` first")
+        raise ClodsError("no 'stability' run records found", where=runs_label(runs_dir), hint="run e.g. `clods-bench run stability --sim constvel` first")
     written = []
     for preset, recs in sorted(groups.items()):
         recs.sort(key=lambda r: (r["label"], r["scene"]))
@@ -345,8 +345,9 @@ def to_markdown(display: pd.DataFrame) -> str:
     return flat.to_markdown()
 
 
-def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]:
-    """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task`; return the paths."""
+def write_tables(runs_dir: Path | Sequence[Path], out_dir: Path, task: str = "cdg") -> list[Path]:
+    """Write one markdown/LaTeX/CSV table per (scene, preset) from the records of `task` (under one runs folder
+    or several); return the paths."""
     if task == "stability":
         return write_stability_tables(runs_dir, out_dir)
     if task not in ("cdg", "nvs", "dvc", "dvc_multi", "extract"):
@@ -355,7 +356,7 @@ def write_tables(runs_dir: Path, out_dir: Path, task: str = "cdg") -> list[Path]
     for _, rec in iter_records(runs_dir, task):
         groups.setdefault((rec["scene"], rec["preset"]), []).append(rec)
     if not groups:
-        raise ClodsError(f"no '{task}' run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
+        raise ClodsError(f"no '{task}' run records found", where=runs_label(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     written = []
     for (scene, preset), recs in sorted(groups.items()):
         recs.sort(key=lambda r: r["label"])

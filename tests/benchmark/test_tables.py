@@ -35,6 +35,29 @@ def test_tables_from_two_runs(tiny_root: Path, tmp_path: Path) -> None:
     assert "\\begin{table}" in tex and "Viewed" in tex
 
 
+def test_tables_from_two_runs_folders(tiny_root: Path, tmp_path: Path) -> None:
+    """Records from several runs folders (e.g. two machines) make one table; one run in two folders is an error."""
+    one = run_task(tiny_config(tiny_root, f"runs_dir={tmp_path / 'a'}", sim="constvel"), default_registry())
+    two = run_task(tiny_config(tiny_root, f"runs_dir={tmp_path / 'b'}", sim="frozen"), default_registry())
+    paths = write_tables([tmp_path / "a", tmp_path / "b"], tmp_path / "tables")
+    csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
+    assert list(csv["method"]) == ["constvel", "frozen"]
+    for rdir, method in ((one, "constvel"), (two, "frozen")):
+        rec = json.loads((rdir / RECORD_FILE).read_text())
+        row = csv[csv["method"] == method].iloc[0]
+        assert row["viewed/interp/d_avg/mean"] == rec["metrics"]["viewed/interp/d_avg"]["mean"]
+    # the constant-velocity run copied into b as well: two records for one row
+    copy = tmp_path / "b" / one.relative_to(tmp_path / "a")
+    copy.mkdir(parents=True)
+    (copy / RECORD_FILE).write_text((one / RECORD_FILE).read_text())
+    with pytest.raises(ClodsError, match="recorded in two runs folders") as err:
+        write_tables([tmp_path / "a", tmp_path / "b"], tmp_path / "tables")
+    assert str(one / RECORD_FILE) in str(err.value) and str(copy / RECORD_FILE) in str(err.value)
+    with pytest.raises(ClodsError, match="not found") as err:
+        write_tables([tmp_path / "a", tmp_path / "nope"], tmp_path / "tables")
+    assert "nope" in str(err.value)
+
+
 def test_no_records_is_a_clear_error(tmp_path: Path) -> None:
     (tmp_path / "runs").mkdir()
     with pytest.raises(ClodsError, match="no 'cdg' run records"):
