@@ -48,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = dsub.add_parser("convert", help="convert a dataset of an older clods-bench (store schema 1, raw .npy frames) in place")
     p.add_argument("root", type=Path, help="a dataset directory, or a data root holding dataset directories")
     p.set_defaults(func=cmd_data_convert)
+    p = dsub.add_parser("digest", help="content digests of a dataset (arrays, not files): did two machines generate the same data?")
+    p.add_argument("root", type=Path, help="a dataset directory")
+    p.add_argument("--frames", action="store_true", help="also digest the decoded images (reads every frame)")
+    p.add_argument("--out", type=Path, help="write the digests to this JSON file")
+    p.add_argument("--against", type=Path, help="a digest JSON from another machine: exit 1 naming each trajectory that differs and its first frame")
+    p.set_defaults(func=cmd_data_digest)
     p = dsub.add_parser("import-flagsimple", help="convert the real FLAGSIMPLE release (meta.json + TFRecord)")
     p.add_argument("source", type=Path, help="directory with meta.json and <split>.tfrecord")
     p.add_argument("--split", default="train")
@@ -237,6 +243,39 @@ def cmd_data_convert(args: argparse.Namespace) -> int:
             ratio = done.npy_bytes / done.stored_bytes if done.stored_bytes else float("nan")
             console.print(f"{done.root}: converted {done.trajectories} trajectories, frames {done.npy_bytes / 1e6:.1f} MB "
                           f"(.npy) -> {done.stored_bytes / 1e6:.1f} MB ({ratio:.1f}x smaller)")  # fmt: skip
+    return 0
+
+
+def cmd_data_digest(args: argparse.Namespace) -> int:
+    import json
+
+    from clods_bench.atomic import write_json
+    from clods_bench.datasets.digest import compare_digests, dataset_digest
+    from clods_bench.datasets.store import DatasetStore
+
+    ours = dataset_digest(DatasetStore.open(args.root), frames=args.frames)
+    if args.out:
+        write_json(args.out, ours)
+    trajs = ours["trajectories"]
+    console.print(f"{args.root}: {len(trajs)} trajectories, scene {ours['scene']}" + (f"; digests in {args.out}" if args.out else ""))
+    if not args.out and not args.against:
+        for key, entry in trajs.items():
+            console.print(f"  {key} {entry.get('split')} {entry.get('static', '-')[:16]} "
+                          f"last frame {(entry.get('world_pos') or ['-'])[-1]}")  # fmt: skip
+    if args.against:
+        try:
+            theirs = json.loads(Path(args.against).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ClodsError(f"cannot read the digest file: {exc}", where=str(args.against)) from None
+        if not isinstance(theirs, dict) or "trajectories" not in theirs:
+            raise ClodsError("not a digest file (no 'trajectories')", where=str(args.against), hint="write one with `clods-bench data digest DIR --out FILE`")
+        problems = compare_digests(ours, theirs)
+        if problems:
+            err_console.print(f"{len(problems)} difference(s) against {args.against}:", highlight=False)
+            for line in problems:
+                err_console.print(f"  {line}", highlight=False)
+            return 1
+        console.print(f"the same data as {args.against}")
     return 0
 
 

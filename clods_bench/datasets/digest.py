@@ -1,0 +1,72 @@
+"""Content digests of a stored dataset, to check that two machines generated the same data.
+
+The manifest's sha256 is over the stored files (a zip with timestamps, compressed chunks): two bit-equal
+generations on two hosts give different file hashes. These digests are over the arrays themselves: one for
+each trajectory's static arrays (cells, mesh_pos, node_type, dt), one per frame of `world_pos`, and optionally
+one over the decoded frames, so a comparison names the first frame at which two hosts' trajectories part.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import numpy as np
+
+from clods_bench.datasets.store import DatasetStore
+
+DIGEST_VERSION = 1
+SHORT = 16  # hex characters kept per frame digest
+
+
+def _hash_arrays(*arrays: np.ndarray) -> str:
+    h = hashlib.sha256()
+    for arr in arrays:
+        arr = np.ascontiguousarray(arr)
+        h.update(f"{arr.dtype.str}{arr.shape}".encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def dataset_digest(store: DatasetStore, frames: bool = False) -> dict[str, Any]:
+    """Digests of every complete trajectory of `store`: static arrays, each `world_pos` frame, and (with
+    `frames`) the decoded images."""
+    out: dict[str, Any] = {"version": DIGEST_VERSION, "scene": store.scene, "trajectories": {}}
+    for index in sorted(store.completed_indices()):
+        entry: dict[str, Any] = {"split": store.entry(index).get("split")}
+        if store.has_meshes:
+            traj = store.load_trajectory(index)
+            entry["static"] = _hash_arrays(traj.cells, traj.mesh_pos, traj.node_type, np.float64(traj.dt))
+            entry["world_pos"] = [_hash_arrays(frame)[:SHORT] for frame in traj.world_pos]
+        if frames:
+            entry["frames"] = _hash_arrays(store.load_frames(index, mmap=False))
+        out["trajectories"][str(index)] = entry
+    return out
+
+
+def compare_digests(ours: dict[str, Any], theirs: dict[str, Any]) -> list[str]:
+    """What differs between two `dataset_digest` results, one line per trajectory (empty: the same data)."""
+    problems: list[str] = []
+    if ours.get("version") != theirs.get("version"):
+        return [f"digest versions differ ({ours.get('version')} and {theirs.get('version')})"]
+    if ours.get("scene") != theirs.get("scene"):
+        problems.append(f"scene '{ours.get('scene')}' against '{theirs.get('scene')}'")
+    a, b = ours["trajectories"], theirs["trajectories"]
+    for key in sorted(set(a) | set(b), key=int):
+        if key not in a or key not in b:
+            problems.append(f"trajectory {key}: only in the {'first' if key in a else 'second'} dataset")
+            continue
+        ta, tb = a[key], b[key]
+        if ta.get("static") != tb.get("static"):
+            problems.append(f"trajectory {key}: mesh topology, rest shape or dt differ")
+        pa, pb = ta.get("world_pos"), tb.get("world_pos")
+        if pa is not None and pb is not None:
+            differing = [t for t, (x, y) in enumerate(zip(pa, pb)) if x != y]
+            if len(pa) != len(pb):
+                problems.append(f"trajectory {key}: {len(pa)} frames against {len(pb)}")
+            elif differing:
+                problems.append(f"trajectory {key}: world_pos differs from frame {differing[0]} on "
+                                f"({len(differing)} of {len(pa)} frames)")  # fmt: skip
+        if "frames" in ta and "frames" in tb and ta["frames"] != tb["frames"]:
+            problems.append(f"trajectory {key}: rendered frames differ")
+    return problems
