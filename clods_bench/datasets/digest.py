@@ -13,10 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from clods_bench.datasets.frame_store import FrameArray
 from clods_bench.datasets.store import DatasetStore
 
 DIGEST_VERSION = 1
 SHORT = 16  # hex characters kept per frame digest
+FRAME_BLOCK = 16  # frames of one camera decoded at a time by frames_digest
 
 
 def _hash_arrays(*arrays: np.ndarray) -> str:
@@ -25,6 +27,17 @@ def _hash_arrays(*arrays: np.ndarray) -> str:
         arr = np.ascontiguousarray(arr)
         h.update(f"{arr.dtype.str}{arr.shape}".encode())
         h.update(arr.tobytes())
+    return h.hexdigest()
+
+
+def frames_digest(frames: FrameArray, block: int = FRAME_BLOCK) -> str:
+    """sha256 of a trajectory's decoded images (T, N, H, W, 3), camera by camera and frame by frame, read
+    `block` frames of one camera at a time, so memory stays bounded at the paper's 800 px."""
+    h = hashlib.sha256(f"|u1{tuple(frames.shape)}".encode())
+    steps, views = frames.shape[0], frames.shape[1]
+    for view in range(views):
+        for t0 in range(0, steps, block):
+            h.update(np.ascontiguousarray(frames.read(slice(t0, min(t0 + block, steps)), [view])).tobytes())
     return h.hexdigest()
 
 
@@ -39,7 +52,7 @@ def dataset_digest(store: DatasetStore, frames: bool = False) -> dict[str, Any]:
             entry["static"] = _hash_arrays(traj.cells, traj.mesh_pos, traj.node_type, np.float64(traj.dt))
             entry["world_pos"] = [_hash_arrays(frame)[:SHORT] for frame in traj.world_pos]
         if frames:
-            entry["frames"] = _hash_arrays(store.load_frames(index, mmap=False))
+            entry["frames"] = frames_digest(store.frames(index))
         out["trajectories"][str(index)] = entry
     return out
 
@@ -52,7 +65,7 @@ def compare_digests(ours: dict[str, Any], theirs: dict[str, Any]) -> list[str]:
     if ours.get("scene") != theirs.get("scene"):
         problems.append(f"scene '{ours.get('scene')}' against '{theirs.get('scene')}'")
     a, b = ours["trajectories"], theirs["trajectories"]
-    for key in sorted(set(a) | set(b), key=int):
+    for key in sorted(set(a) | set(b), key=lambda k: (not str(k).isdigit(), int(k) if str(k).isdigit() else 0, str(k))):
         if key not in a or key not in b:
             problems.append(f"trajectory {key}: only in the {'first' if key in a else 'second'} dataset")
             continue
