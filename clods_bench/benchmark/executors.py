@@ -16,7 +16,7 @@ import signal
 import sys
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Literal, Sequence
@@ -134,15 +134,28 @@ class LocalExecutor:
             raise ClodsError(f"must be >= 1, got {jobs}", where="--jobs")
         self.jobs = int(jobs)
 
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], describe: Callable[[Any], str] = str, progress: bool = True) -> list[Any]:
-        """`[fn(item) for item in items]` (results in item order), with a progress bar."""
+    def map(
+        self,
+        fn: Callable[[Any], Any],
+        items: Sequence[Any],
+        describe: Callable[[Any], str] = str,
+        progress: bool = True,
+        deadline: float | None = None,
+    ) -> list[Any]:
+        """`[fn(item) for item in items]` (results in item order), with a progress bar.
+
+        `deadline` (a `time.monotonic()` value): items not started by then are not started at all and their result is
+        None; started ones run to the end (a time-boxed `reproduce --budget`). Items start in list order either way.
+        """
         if self.jobs == 1 or len(items) <= 1:
-            out = []
+            out: list[Any] = [None] * len(items)
             with Progress(disable=not progress) as bar:
                 task = bar.add_task("jobs (local)", total=len(items))
-                for item in items:
+                for i, item in enumerate(items):
+                    if _past(deadline):
+                        break
                     bar.update(task, description=f"job {describe(item)}")
-                    out.append(fn(item))
+                    out[i] = fn(item)
                     bar.advance(task)
             return out
         threads = max(1, (os.cpu_count() or 1) // self.jobs)
@@ -151,12 +164,28 @@ class LocalExecutor:
         pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_init_worker, initargs=(threads, os.getpid()))
         with _term_as_interrupt():
             try:
-                futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+                # At most `jobs` submitted at a time, the next one when a worker is free: a job that would wait in the
+                # pool's queue past the deadline is never submitted.
+                queue = iter(enumerate(items))
+                running: dict[Any, int] = {}
+
+                def submit_next() -> None:
+                    if _past(deadline):
+                        return
+                    nxt = next(queue, None)
+                    if nxt is not None:
+                        running[pool.submit(fn, nxt[1])] = nxt[0]
+
+                for _ in range(self.jobs):
+                    submit_next()
                 with Progress(disable=not progress) as bar:
                     task = bar.add_task(f"jobs (local, {self.jobs} processes x {threads} threads)", total=len(items))
-                    for fut in as_completed(futures):
-                        results[futures[fut]] = fut.result()
-                        bar.advance(task)
+                    while running:
+                        done, _pending = wait(running, return_when=FIRST_COMPLETED)
+                        for fut in done:
+                            results[running.pop(fut)] = fut.result()
+                            bar.advance(task)
+                            submit_next()
             except Exception:  # a failed job: drop the queued ones, let the running ones finish and save their work
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
@@ -165,6 +194,11 @@ class LocalExecutor:
                 raise
         pool.shutdown(wait=True)
         return results
+
+
+def _past(deadline: float | None) -> bool:
+    """Whether the monotonic clock has passed `deadline` (never, for None)."""
+    return deadline is not None and time.monotonic() >= deadline
 
 
 def stop_workers(pool: ProcessPoolExecutor, grace: float = 5.0) -> None:
@@ -328,12 +362,17 @@ def run_configs(
     executor: LocalExecutor | RayExecutor,
     registry: Any,
     console: Console,
+    deadline: float | None = None,
 ) -> list[dict[str, Any]]:
     """Run every (name, config) over its seeds through `executor`; aggregate each run here; return one summary per run.
 
     Datasets are generated first, once per distinct data config, their trajectories in parallel through `executor`.
-    Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run.
+    Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run,
+    complete (every seed recorded). `deadline` (`time.monotonic()`, local executor only): no job starts after it; a
+    run left with a seed unrecorded is not aggregated (complete False) and resumes on the next call.
     """
+    if deadline is not None and executor.name != "local":
+        raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
     from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task, task_datasets
 
     for name, cfg in configs:
@@ -363,11 +402,22 @@ def run_configs(
                 worker_cfg["progress"] = False if parallel else cfg.progress
                 jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))
     console.print(f"{len(jobs)} seed job(s) to run on the {executor.name} executor ({sum(len(c.seeds) for _, c in configs) - len(jobs)} finished earlier)")
-    results = executor.map(run_seed_job, jobs, describe=lambda j: f"{j.name} seed {j.seed}", progress=any(c.progress for _, c in configs))
+    describe = lambda j: f"{j.name} seed {j.seed}"  # noqa: E731
+    progress = any(c.progress for _, c in configs)
+    if deadline is None:
+        results = executor.map(run_seed_job, jobs, describe=describe, progress=progress)
+    else:
+        results = executor.map(run_seed_job, jobs, describe=describe, progress=progress, deadline=deadline)
 
     summaries = []
     for name, cfg in configs:
-        mine = [r for r in results if r["name"] == name]
-        rdir = run_task(cfg, registry, Console(stderr=True, quiet=True), ensure_data=ensure_complete_dataset)  # every seed is on disk now: this only aggregates
-        summaries.append({"name": name, "record_dir": str(rdir), "wall_seconds": sum(r["wall_seconds"] for r in mine), "seeds_run": sorted(r["seed"] for r in mine)})
+        mine = [r for r in results if r is not None and r["name"] == name]
+        summary = {"name": name, "record_dir": str(record_dir(cfg)), "wall_seconds": sum(r["wall_seconds"] for r in mine),
+                   "seeds_run": sorted(r["seed"] for r in mine), "complete": True}  # fmt: skip
+        if any(load_seed_result(record_dir(cfg), seed) is None for seed in cfg.seeds):
+            summary["complete"] = False  # left out by the deadline: aggregating would run its seeds here
+        else:
+            rdir = run_task(cfg, registry, Console(stderr=True, quiet=True), ensure_data=ensure_complete_dataset)  # every seed is on disk now: this only aggregates
+            summary["record_dir"] = str(rdir)
+        summaries.append(summary)
     return summaries

@@ -288,14 +288,23 @@ def reproduce(
     ray_address: str | None = None,
     jobs: int = 1,
     first_seeds: int | None = None,
+    budget_seconds: float | None = None,
 ) -> dict[str, Any]:
     """Run every run of the plan (resuming finished seeds), write every table and `manifest.json`; return the manifest.
 
-    `first_seeds`: run only the first that many seeds of every run (see `build_configs`).
+    `first_seeds`: run only the first that many seeds of every run (see `build_configs`). `budget_seconds`: start no
+    (run, seed) job later than this many seconds after the call began (local executor); a table whose rows did not all
+    finish is not written but listed under the manifest's `unfinished` (table id -> row labels), and a later call
+    resumes it.
     """
     from clods_bench.benchmark.executors import make_executor, run_configs
 
     t_start = time.perf_counter()
+    if budget_seconds is not None and not budget_seconds > 0:
+        raise ClodsError(f"must be a number of seconds > 0, got {budget_seconds}", where="--budget")
+    if budget_seconds is not None and executor_name != "local":
+        raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
+    deadline = None if budget_seconds is None else time.monotonic() + float(budget_seconds)
     plan_file = Path(plan_path) if plan_path is not None else default_plan_path()
     plan = load_plan(plan_file)
     if only:
@@ -307,13 +316,17 @@ def reproduce(
     runs = build_configs(plan, preset, registry, overrides, first_seeds=first_seeds)
     executor = make_executor(executor_name, ray_address, jobs)
     canonical, same_as = canonical_rows(runs)
-    summaries = {s["name"]: s for s in run_configs(canonical, executor, registry, console)}
+    summaries = {s["name"]: s for s in run_configs(canonical, executor, registry, console, deadline=deadline)}
 
     out_dir = Path(out_dir)
     records: dict[str, dict[str, Any]] = {}
     manifest_runs = []
+    unfinished: dict[str, list[str]] = {}
     for run, cfg in runs:
         summary = summaries[same_as[run_name(run)]]
+        if not summary.get("complete", True):
+            unfinished.setdefault(run.table, []).append(run.label + (f" @{run.scene}" if run.scene else ""))
+            continue
         rec = json.loads((Path(summary["record_dir"]) / RECORD_FILE).read_text())
         rec["label"] = run.label
         records[run_name(run)] = rec
@@ -336,6 +349,9 @@ def reproduce(
         )
     written: list[str] = []
     for table in plan.tables:
+        if table.id in unfinished:
+            console.print(f"[bold]{table.id}[/bold]: not written, {len(unfinished[table.id])} row(s) left by the time budget")
+            continue
         recs = [records[run_name(r)] for r in plan.runs if r.table == table.id]
         written += [p.name for p in write_plan_table(table, recs, out_dir, preset)]
         console.print(f"[bold]{table.id}[/bold]: {len(recs)} row(s)")
@@ -352,6 +368,8 @@ def reproduce(
         "tables": [t.id for t in plan.tables],
         "files": sorted(written),
         "runs": manifest_runs,
+        "budget_seconds": budget_seconds,
+        "unfinished": unfinished,
         "wall_seconds_total": time.perf_counter() - t_start,
         "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }

@@ -270,3 +270,22 @@ def test_a_failed_job_lets_the_running_ones_finish(tmp_path: Path) -> None:
     with pytest.raises(ClodsError, match="failed on purpose"):
         LocalExecutor(jobs=2).map(_fail_or_finish, [("slow", str(tmp_path)), ("fail", str(tmp_path))], progress=False)
     assert (tmp_path / "finished").exists()
+
+
+def _sleep_then(arg: tuple[float, int]) -> int:
+    import time
+
+    time.sleep(arg[0])
+    return arg[1]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_no_job_starts_after_the_deadline_and_started_ones_finish(jobs: int) -> None:
+    """A time-boxed map: jobs submitted before the deadline run to the end; the rest never start (result None)."""
+    import time
+
+    items = [(1.5, 0), (1.5, 1), (0.0, 2), (0.0, 3)]
+    out = LocalExecutor(jobs=jobs).map(_sleep_then, items, progress=False, deadline=time.monotonic() + 0.5)
+    assert out == ([0, None, None, None] if jobs == 1 else [0, 1, None, None])
+    assert LocalExecutor(jobs=jobs).map(_sleep_then, items[2:], progress=False, deadline=time.monotonic() + 60) == [2, 3]
+    assert LocalExecutor(jobs=jobs).map(_sleep_then, items[2:], progress=False, deadline=time.monotonic() - 1) == [None, None]

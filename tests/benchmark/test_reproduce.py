@@ -280,3 +280,81 @@ def test_dry_run_lists_the_seeds_already_recorded(tmp_path: Path, tiny_root: Pat
     capsys.readouterr()
     assert main(["reproduce", "--plan", str(plan), "--dry-run", *sets]) == 0
     assert "4 of 4 seed jobs have records" in capsys.readouterr().out
+
+
+BUDGET_PLAN = textwrap.dedent(
+    """\
+    version: 1
+    description: two tables for the time budget
+    tables:
+      - {id: t_first, task: cdg, title: "first"}
+      - {id: t_second, task: cdg, title: "second"}
+    runs:
+      - {table: t_first, task: cdg, label: Const. velocity, sim: constvel}
+      - {table: t_second, task: cdg, label: Frozen, sim: frozen}
+    """
+)
+
+
+def _deadline_after(monkeypatch: pytest.MonkeyPatch, jobs_allowed: int) -> None:
+    """Make the executor's deadline pass once `jobs_allowed` jobs have started (the serial executor asks before each)."""
+    import clods_bench.benchmark.executors as executors
+
+    asked = []
+
+    def past(deadline: float | None) -> bool:
+        asked.append(deadline)
+        return deadline is not None and len(asked) > jobs_allowed
+
+    monkeypatch.setattr(executors, "_past", past)
+
+
+def test_a_time_budget_writes_the_finished_tables_and_the_next_run_resumes(tmp_path: Path, tiny_root: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    plan = _plan(tmp_path, BUDGET_PLAN)
+    over = _overrides(tiny_root, tmp_path / "runs")
+    _deadline_after(monkeypatch, 1)
+    first = reproduce("ci", tmp_path / "out", default_registry(), Console(quiet=True), "local", plan, over, first_seeds=1, budget_seconds=100)
+    assert first["unfinished"] == {"t_second": ["Frozen"]} and first["budget_seconds"] == 100
+    assert (tmp_path / "out" / "t_first.csv").is_file() and not (tmp_path / "out" / "t_second.csv").exists()
+    assert [r["label"] for r in first["runs"]] == ["Const. velocity"]
+    monkeypatch.undo()
+    again = reproduce("ci", tmp_path / "out", default_registry(), Console(quiet=True), "local", plan, over, first_seeds=1)
+    assert again["unfinished"] == {} and (tmp_path / "out" / "t_second.csv").is_file()
+    seeds_run = {r["label"]: r["seeds_run"] for r in again["runs"]}
+    assert seeds_run == {"Const. velocity": [], "Frozen": [0]}  # the finished row is resumed, not rerun
+    fresh = reproduce("ci", tmp_path / "fresh", default_registry(), Console(quiet=True), "local", plan, _overrides(tiny_root, tmp_path / "runs2"), first_seeds=1)
+    a, b = (pd.read_csv(tmp_path / d / "t_first.csv") for d in ("out", "fresh"))
+    metrics = [c for c in a.columns if c.endswith("/mean")]
+    assert len(metrics) > 4 and a[metrics].equals(b[metrics])  # the budgeted run's table holds the unbudgeted numbers
+    with pytest.raises(ClodsError, match="--budget"):
+        reproduce("ci", tmp_path / "x", default_registry(), Console(quiet=True), "local", plan, over, first_seeds=1, budget_seconds=0)
+    with pytest.raises(ClodsError, match="local executor"):
+        reproduce("ci", tmp_path / "x", default_registry(), Console(quiet=True), "ray", plan, over, first_seeds=1, budget_seconds=10)
+    assert fresh["unfinished"] == {}
+
+
+def test_cli_check_under_a_budget_names_the_tables_it_did_not_check(
+    tmp_path: Path, tiny_root: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = _plan(tmp_path, BUDGET_PLAN)
+    sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]
+    committed = tmp_path / "committed"
+    assert main(["reproduce", "--plan", str(plan), "--out", str(committed), "--first-seeds", "1", *sets]) == 0
+    (committed / "tolerance.yaml").write_text("default: {rel: 1.0e-6, abs: 1.0e-9}\nexclude: ['*_ms_per_*', '*seconds*']\n")
+    frozen = pd.read_csv(committed / "t_second.csv")
+    frozen.loc[0, "viewed/interp/d_avg/mean"] *= 1.5  # a moved number in the table the budget leaves out
+    frozen.to_csv(committed / "t_second.csv", index=False)
+    fresh = tmp_path / "fresh"
+    check = ["reproduce", "--plan", str(plan), "--out", str(fresh), "--first-seeds", "1", "--check", str(committed), *sets]
+    capsys.readouterr()
+    _deadline_after(monkeypatch, 0)  # everything recorded already: the runs resume, so give the fresh tables a new runs_dir
+    sets2 = [arg for o in _overrides(tiny_root, tmp_path / "runs_fresh") for arg in ("--set", o)]
+    check = [*check[: -len(sets)], *sets2]
+    assert main([*check, "--budget", "5"]) == 2  # nothing could start: nothing was checked, an error
+    assert "left no table to check" in capsys.readouterr().err
+    _deadline_after(monkeypatch, 1)
+    assert main([*check, "--budget", "5"]) == 0  # t_first checked and equal; t_second not run, so not compared
+    out = capsys.readouterr().out
+    assert "not checked (left by the time budget): t_second" in out and "1 of 2 tables finished" in out
+    monkeypatch.undo()
+    assert main(check) == 1  # without a budget the moved number in t_second is found
