@@ -3,7 +3,10 @@
 A rollout fails at the first frame t >= 2 (frames 0 and 1 are given) where a position is
 NaN/Inf, where the largest edge strain max_e |l_e(t)/l0_e - 1| exceeds a threshold, or where
 the kinetic energy 1/2 sum_i m_i |(x_i(t) - x_i(t-1))/dt|^2 exceeds a threshold. Only the cloth's
-nodes are monitored: a scene's obstacle nodes are rigid and prescribed (`cloth_monitor`).
+nodes are monitored: a scene's obstacle nodes are rigid and prescribed (`cloth_monitor`). A strain
+failure names where the cloth tore: the edge's distance in mesh edges from the nearest handle
+(a tear at the pinned nodes points at how handles are treated; one far from them, at error
+accumulating over the free cloth).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clods_bench.datasets.obstacle_nodes import split_cloth
-from clods_bench.datasets.types import ClothMesh, edges_from_cells
+from clods_bench.datasets.types import HANDLE, ClothMesh, edges_from_cells
 
 
 def _divisor_pairs(n: int) -> list[tuple[int, int]]:
@@ -80,6 +83,8 @@ class MeshMonitor:
     dt: float
     nodes: np.ndarray | None = None
     """Indices of the monitored (cloth) nodes in the frames' node list; None: all of them (no obstacle nodes)."""
+    handle_hops: np.ndarray | None = None
+    """(V_monitored,) mesh-edge hops from each monitored node to the nearest handle node (-1: none reachable); None: no handles."""
 
     def _frames(self, frames: np.ndarray) -> np.ndarray:
         x = np.asarray(frames, np.float64)
@@ -103,6 +108,23 @@ class MeshMonitor:
         out[~np.isfinite(x).all(axis=(1, 2))] = np.nan
         return out
 
+    def worst_edge(self, frame: np.ndarray) -> tuple[int, float]:
+        """(index into `edges`, strain) of the most strained edge of one frame (V,3) (its finite edges only)."""
+        x = self._frames(np.asarray(frame)[None])[0]
+        with np.errstate(over="ignore", invalid="ignore"):
+            strain = np.abs(np.linalg.norm(x[self.edges[:, 0]] - x[self.edges[:, 1]], axis=1) / self.rest_length - 1.0)
+        strain = np.where(np.isfinite(strain), strain, -1.0)
+        e = int(np.argmax(strain))
+        return e, float(strain[e])
+
+    def edge_hops_to_handle(self, edge: int) -> int | None:
+        """Mesh-edge hops from an edge's nearer end to the nearest handle node (0: the edge touches one); None when
+        the mesh has no handle or none is reachable."""
+        if self.handle_hops is None:
+            return None
+        hops = [int(h) for h in self.handle_hops[self.edges[edge]] if h >= 0]
+        return min(hops) if hops else None
+
     def kinetic_energy(self, frames: np.ndarray) -> np.ndarray:
         """(T,) kinetic energy (J) from backward differences; frame 0 gets 0 (no previous frame)."""
         x = self._frames(frames)
@@ -113,13 +135,42 @@ class MeshMonitor:
         return out
 
 
+def hop_distance(edges: np.ndarray, num_nodes: int, sources: np.ndarray) -> np.ndarray:
+    """(num_nodes,) breadth-first distance in edges from the nearest of `sources` (-1 where none is reachable)."""
+    edges = np.asarray(edges, np.int64)
+    dist = np.full(int(num_nodes), -1, np.int64)
+    frontier = np.unique(np.asarray(sources, np.int64))
+    dist[frontier] = 0
+    both = np.concatenate([edges, edges[:, ::-1]])
+    d = 0
+    while frontier.size:
+        d += 1
+        reached = np.zeros(int(num_nodes), bool)
+        reached[frontier] = True
+        nxt = np.unique(both[reached[both[:, 0]], 1])
+        frontier = nxt[dist[nxt] < 0]
+        dist[frontier] = d
+    return dist
+
+
 def cloth_monitor(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, node_type: np.ndarray, density: float, dt: float) -> MeshMonitor:
     """Monitor of a trajectory's cloth (its obstacle nodes left out) against the scene's rest shape, else the flat flag's."""
     part = split_cloth(cells, mesh_pos, node_type)
     mesh = scene_rest_mesh(scene, part.cells, part.mesh_pos)
     rest = mesh.rest_pos if mesh is not None else flat_rest_pos(part.mesh_pos)
     monitor = MeshMonitor.from_rest(part.cells, rest, density, dt)
+    handles = np.flatnonzero(np.asarray(part.node_type) == HANDLE)
+    if handles.size:
+        monitor = dataclasses.replace(monitor, handle_hops=hop_distance(monitor.edges, len(rest), handles))
     return monitor if part.obstacle_nodes.size == 0 else dataclasses.replace(monitor, nodes=part.nodes)
+
+
+def _tear_site(monitor: MeshMonitor, frame: np.ndarray) -> str:
+    """', k hops from a handle' for the most strained edge of `frame` ('' when the mesh has no handle)."""
+    hops = monitor.edge_hops_to_handle(monitor.worst_edge(frame)[0])
+    if hops is None:
+        return ""
+    return ", at a handle" if hops == 0 else f", {hops} hop{'s' if hops > 1 else ''} from a handle"
 
 
 @dataclass(frozen=True)
@@ -145,7 +196,7 @@ def first_failure(
         if not finite[t]:
             return Failure(t, "non-finite positions (NaN/Inf)"), strain, energy
         if strain[t] > strain_threshold:
-            return Failure(t, f"edge strain {strain[t]:.3g} > {strain_threshold:g}"), strain, energy
+            return Failure(t, f"edge strain {strain[t]:.3g} > {strain_threshold:g}" + _tear_site(monitor, frames[t])), strain, energy
         if not np.isfinite(energy[t]) or energy[t] > energy_threshold:
             return Failure(t, f"kinetic energy {energy[t]:.3g} J > {energy_threshold:.3g} J"), strain, energy
     return None, strain, energy

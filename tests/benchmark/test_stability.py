@@ -208,3 +208,56 @@ def test_training_curve_needs_a_learned_simulator(tiny_root: Path, tmp_path: Pat
     assert "task_config.stability.curve_every" in str(err.value)
     with pytest.raises(ClodsError, match="curve_every"):
         _run(tiny_root, tmp_path / "runs", registry, "mgn", "task_config.stability.curve_every=-1")
+
+
+def test_hop_distance_against_a_brute_force_shortest_path() -> None:
+    from itertools import product
+
+    from clods_bench.benchmark.monitors import hop_distance
+
+    mesh = make_flag_mesh(5, 4, 2.0, 1.0)
+    mon = MeshMonitor.from_rest(mesh.cells, mesh.rest_pos, 1.0, 0.01)
+    n = mesh.num_nodes
+    d = np.full((n, n), np.inf)  # Floyd-Warshall over unit-weight edges
+    np.fill_diagonal(d, 0)
+    for a, b in mon.edges:
+        d[a, b] = d[b, a] = 1
+    for k, i, j in product(range(n), repeat=3):
+        d[i, j] = min(d[i, j], d[i, k] + d[k, j])
+    sources = np.array([0, 7])
+    assert np.array_equal(hop_distance(mon.edges, n, sources), d[sources].min(axis=0).astype(int))
+    island = hop_distance(np.array([[0, 1]]), 4, np.array([0]))  # nodes 2 and 3 unreachable
+    assert island.tolist() == [0, 1, -1, -1]
+
+
+def test_a_strain_failure_names_how_far_the_tear_is_from_a_handle(tiny_root: Path) -> None:
+    """Stretch one chosen edge of a flag pinned along one side: the failure reason and the task's watch name the
+    edge's hop distance from the handles, which a hand count on the grid gives."""
+    import dataclasses
+
+    from clods_bench.benchmark.monitors import cloth_monitor, hop_distance
+    from clods_bench.benchmark.tasks.stability import StabilityConfig, watch
+    from clods_bench.datasets.types import HANDLE
+
+    mesh = make_flag_mesh(6, 3, 2.0, 1.0)  # 6 columns along x, 3 rows along z
+    node_type = np.zeros(mesh.num_nodes, np.int32)
+    pinned = np.flatnonzero(np.isclose(mesh.rest_pos[:, 0], mesh.rest_pos[:, 0].min()))
+    node_type[pinned] = HANDLE
+    mon = cloth_monitor(object(), mesh.cells, mesh.mesh_pos, node_type, 1.0, 0.01)
+    mon = dataclasses.replace(mon, rest_length=np.linalg.norm(mesh.rest_pos[mon.edges[:, 0]] - mesh.rest_pos[mon.edges[:, 1]], axis=1))
+    frames = np.repeat(mesh.rest_pos[None], 6, axis=0)
+    # the free end: the node farthest from the pinned side, moved away along +x at frame 4
+    far = int(np.argmax(mesh.rest_pos[:, 0]))
+    frames[4:, far, 0] += 5.0
+    fail, _, _ = first_failure(frames, mon, 0.5, 1e30)
+    hops = hop_distance(mon.edges, mesh.num_nodes, pinned)
+    assert hops[far] == 5  # 5 columns from the pinned side; the most stretched edge runs to its neighbour, 4 hops out
+    assert fail.frame == 4 and fail.reason.endswith(", 4 hops from a handle")
+    result = watch(frames, None, mon, StabilityConfig(), 1.0, None, None)
+    assert result["failure_frame"] == 4 and result["tear_hops_to_handle"] == 4
+    frames[4:] = mesh.rest_pos
+    frames[4:, pinned[0], 0] -= 5.0  # a handle node pulled: the torn edge touches a handle
+    fail, _, _ = first_failure(frames, mon, 0.5, 1e30)
+    assert fail.reason.endswith(", at a handle")
+    no_handles = cloth_monitor(object(), mesh.cells, mesh.mesh_pos, np.zeros(mesh.num_nodes, np.int32), 1.0, 0.01)
+    assert no_handles.handle_hops is None and no_handles.edge_hops_to_handle(0) is None

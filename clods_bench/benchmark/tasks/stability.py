@@ -173,6 +173,9 @@ def watch(
     frame, reason = (failure.frame, failure.reason) if failure is not None else (None, None)
     if exc_frame is not None and (frame is None or exc_frame <= frame):
         frame, reason = exc_frame, f"exception: {exc_message}"
+    tear_hops = None  # where a strain failure tore the cloth: mesh-edge hops from the nearest handle
+    if frame is not None and reason is not None and reason.startswith("edge strain"):
+        tear_hops = monitor.edge_hops_to_handle(monitor.worst_edge(pred[frame])[0])
     n = 0 if gt is None else min(len(gt), len(pred))
     curve = rmse_per_step(pred[:n], gt[:n], monitor.nodes) if n else np.zeros(0)
     scored = curve[2:]
@@ -186,6 +189,7 @@ def watch(
         "max_energy_ratio": float(np.nanmax(energy[2:]) / max(gt_energy_max, 1e-300)) if len(energy) > 2 else 0.0,
         "failure_frame": frame,
         "reason": reason,
+        "tear_hops_to_handle": tear_hops,
     }
 
 
@@ -252,6 +256,7 @@ def run_stability(ctx: TaskContext) -> TaskResult:
     extra = {
         "diverged": {k: r["failure_frame"] for k, r in per_traj.items() if r["failure_frame"] is not None},
         "reasons": {k: r["reason"] for k, r in per_traj.items() if r["reason"] is not None},
+        "tear_hops_to_handle": {k: r["tear_hops_to_handle"] for k, r in per_traj.items() if r.get("tear_hops_to_handle") is not None},
         "rollouts": len(results),
         "horizon_frames": frames,
         "ground_truth_frames": frames if extended else splits.num_steps,
