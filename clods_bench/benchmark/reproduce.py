@@ -316,6 +316,14 @@ def reproduce(
     runs = build_configs(plan, preset, registry, overrides, first_seeds=first_seeds)
     executor = make_executor(executor_name, ray_address, jobs)
     canonical, same_as = canonical_rows(runs)
+    # Jobs start in the order of the plan's tables (a run shared by several tables with its first one), so a time
+    # budget finishes whole tables in the order the plan lists them. The order changes no number.
+    position = {t.id: i for i, t in enumerate(plan.tables)}
+    first_table: dict[str, int] = {}
+    for run, _ in runs:
+        name = same_as[run_name(run)]
+        first_table[name] = min(first_table.get(name, len(position)), position[run.table])
+    canonical.sort(key=lambda item: first_table[item[0]])
     summaries = {s["name"]: s for s in run_configs(canonical, executor, registry, console, deadline=deadline)}
 
     out_dir = Path(out_dir)

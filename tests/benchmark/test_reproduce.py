@@ -290,10 +290,10 @@ BUDGET_PLAN = textwrap.dedent(
       - {id: t_first, task: cdg, title: "first"}
       - {id: t_second, task: cdg, title: "second"}
     runs:
-      - {table: t_first, task: cdg, label: Const. velocity, sim: constvel}
       - {table: t_second, task: cdg, label: Frozen, sim: frozen}
+      - {table: t_first, task: cdg, label: Const. velocity, sim: constvel}
     """
-)
+)  # runs listed against the tables' order: jobs still start table by table, t_first's first
 
 
 def _deadline_after(monkeypatch: pytest.MonkeyPatch, jobs_allowed: int) -> None:
