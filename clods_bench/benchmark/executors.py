@@ -262,8 +262,13 @@ class RayExecutor:
             ) from None
         return ray
 
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], describe: Callable[[Any], str] = str, progress: bool = True) -> list[Any]:
-        """Submit `fn(item)` for every item as a Ray task and return the results in item order."""
+    def map(
+        self, fn: Callable[[Any], Any], items: Sequence[Any], describe: Callable[[Any], str] = str, progress: bool = True, deadline: float | None = None
+    ) -> list[Any]:
+        """Submit `fn(item)` for every item as a Ray task and return the results in item order (no `deadline`: Ray
+        schedules every task at once)."""
+        if deadline is not None:
+            raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
         ray = self._ray()
         started = False
         if not ray.is_initialized():
@@ -371,7 +376,7 @@ def run_configs(
     complete (every seed recorded). `deadline` (`time.monotonic()`, local executor only): no job starts after it; a
     run left with a seed unrecorded is not aggregated (complete False) and resumes on the next call.
     """
-    if deadline is not None and executor.name != "local":
+    if deadline is not None and executor.name != "local":  # before any dataset is generated
         raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
     from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task, task_datasets
 
@@ -402,19 +407,16 @@ def run_configs(
                 worker_cfg["progress"] = False if parallel else cfg.progress
                 jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))
     console.print(f"{len(jobs)} seed job(s) to run on the {executor.name} executor ({sum(len(c.seeds) for _, c in configs) - len(jobs)} finished earlier)")
-    describe = lambda j: f"{j.name} seed {j.seed}"  # noqa: E731
-    progress = any(c.progress for _, c in configs)
-    if deadline is None:
-        results = executor.map(run_seed_job, jobs, describe=describe, progress=progress)
-    else:
-        results = executor.map(run_seed_job, jobs, describe=describe, progress=progress, deadline=deadline)
+    results = executor.map(run_seed_job, jobs, describe=lambda j: f"{j.name} seed {j.seed}", progress=any(c.progress for _, c in configs),
+                           deadline=deadline)  # fmt: skip
 
     summaries = []
     for name, cfg in configs:
         mine = [r for r in results if r is not None and r["name"] == name]
-        summary = {"name": name, "record_dir": str(record_dir(cfg)), "wall_seconds": sum(r["wall_seconds"] for r in mine),
+        rdir = record_dir(cfg)
+        summary = {"name": name, "record_dir": str(rdir), "wall_seconds": sum(r["wall_seconds"] for r in mine),
                    "seeds_run": sorted(r["seed"] for r in mine), "complete": True}  # fmt: skip
-        if any(load_seed_result(record_dir(cfg), seed) is None for seed in cfg.seeds):
+        if any(load_seed_result(rdir, seed) is None for seed in cfg.seeds):
             summary["complete"] = False  # left out by the deadline: aggregating would run its seeds here
         else:
             rdir = run_task(cfg, registry, Console(stderr=True, quiet=True), ensure_data=ensure_complete_dataset)  # every seed is on disk now: this only aggregates

@@ -165,9 +165,8 @@ def cloth_monitor(scene: object, cells: np.ndarray, mesh_pos: np.ndarray, node_t
     return monitor if part.obstacle_nodes.size == 0 else dataclasses.replace(monitor, nodes=part.nodes)
 
 
-def _tear_site(monitor: MeshMonitor, frame: np.ndarray) -> str:
-    """', k hops from a handle' for the most strained edge of `frame` ('' when the mesh has no handle)."""
-    hops = monitor.edge_hops_to_handle(monitor.worst_edge(frame)[0])
+def _tear_site(hops: int | None) -> str:
+    """', k hops from a handle' for a torn edge `hops` edges from the nearest handle ('' when the mesh has none)."""
     if hops is None:
         return ""
     return ", at a handle" if hops == 0 else f", {hops} hop{'s' if hops > 1 else ''} from a handle"
@@ -179,6 +178,8 @@ class Failure:
 
     frame: int
     reason: str
+    tear_hops_to_handle: int | None = None
+    """For a strain failure: mesh-edge hops from the most strained edge to the nearest handle (None: no handle)."""
 
 
 def first_failure(
@@ -196,7 +197,8 @@ def first_failure(
         if not finite[t]:
             return Failure(t, "non-finite positions (NaN/Inf)"), strain, energy
         if strain[t] > strain_threshold:
-            return Failure(t, f"edge strain {strain[t]:.3g} > {strain_threshold:g}" + _tear_site(monitor, frames[t])), strain, energy
+            hops = monitor.edge_hops_to_handle(monitor.worst_edge(frames[t])[0])
+            return Failure(t, f"edge strain {strain[t]:.3g} > {strain_threshold:g}" + _tear_site(hops), hops), strain, energy
         if not np.isfinite(energy[t]) or energy[t] > energy_threshold:
             return Failure(t, f"kinetic energy {energy[t]:.3g} J > {energy_threshold:.3g} J"), strain, energy
     return None, strain, energy

@@ -302,8 +302,6 @@ def reproduce(
     t_start = time.perf_counter()
     if budget_seconds is not None and not budget_seconds > 0:
         raise ClodsError(f"must be a number of seconds > 0, got {budget_seconds}", where="--budget")
-    if budget_seconds is not None and executor_name != "local":
-        raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
     deadline = None if budget_seconds is None else time.monotonic() + float(budget_seconds)
     plan_file = Path(plan_path) if plan_path is not None else default_plan_path()
     plan = load_plan(plan_file)

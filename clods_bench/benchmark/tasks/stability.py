@@ -171,11 +171,9 @@ def watch(
     """Score one long rollout: RMSE where ground truth exists, strain/energy curves, first failure and reason."""
     failure, strain, energy = first_failure(pred, monitor, cfg.strain_threshold, cfg.energy_factor * gt_energy_max)
     frame, reason = (failure.frame, failure.reason) if failure is not None else (None, None)
+    tear_hops = failure.tear_hops_to_handle if failure is not None else None  # where a strain failure tore the cloth
     if exc_frame is not None and (frame is None or exc_frame <= frame):
-        frame, reason = exc_frame, f"exception: {exc_message}"
-    tear_hops = None  # where a strain failure tore the cloth: mesh-edge hops from the nearest handle
-    if frame is not None and reason is not None and reason.startswith("edge strain"):
-        tear_hops = monitor.edge_hops_to_handle(monitor.worst_edge(pred[frame])[0])
+        frame, reason, tear_hops = exc_frame, f"exception: {exc_message}", None
     n = 0 if gt is None else min(len(gt), len(pred))
     curve = rmse_per_step(pred[:n], gt[:n], monitor.nodes) if n else np.zeros(0)
     scored = curve[2:]
