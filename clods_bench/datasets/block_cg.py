@@ -104,13 +104,37 @@ def _apply_pinv(pinv, r, z):
 
 
 @numba.njit(cache=True)
+def inverse3(a, out):
+    """out = a^-1 for a 3x3 matrix by cofactors, in a fixed order of operations.
+
+    Not np.linalg.inv: inside numba that calls LAPACK (OpenBLAS), whose kernels are chosen per CPU and round
+    differently, which made the generated cloth differ between hosts; this gives the same bits on every CPU.
+    """
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    if det == 0.0 or not np.isfinite(det):
+        raise ValueError("a preconditioner block is singular (or not finite): the cloth system has a degenerate node")
+    out[0, 0] = c00 / det
+    out[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+    out[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+    out[1, 0] = c01 / det
+    out[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+    out[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+    out[2, 0] = c02 / det
+    out[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+    out[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+
+
+@numba.njit(cache=True)
 def block_pcg(indptr, indices, diag, blocks, b, x, free, tol, max_iter):
     """Solve A x = b on free nodes (x fixed to 0 elsewhere), block-Jacobi PCG; returns (iters, rel. residual)."""
     n = b.shape[0]
     pinv = np.zeros((n, 3, 3))
     for i in range(n):
         if free[i]:
-            pinv[i] = np.linalg.inv(blocks[diag[i]])
+            inverse3(blocks[diag[i]], pinv[i])
         else:
             x[i, :] = 0.0
     r = np.empty((n, 3))

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clods_bench.datasets.fixed_order import apply3
 from clods_bench.errors import ClodsError
 
 
@@ -71,11 +72,11 @@ class Camera:
     @property
     def center(self) -> np.ndarray:
         """Camera centre in world coordinates."""
-        return -self.R.T @ self.t
+        return -apply3(self.R.T, self.t[None, :])[0]
 
     def world_to_camera(self, points: np.ndarray) -> np.ndarray:
         """(N,3) world points to (N,3) camera coordinates."""
-        return points @ self.R.T + self.t
+        return apply3(self.R, points) + self.t  # not `@`: the same bits on every CPU (fixed_order)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N,3) world points to (N,2) pixel coordinates (u, v) and (N,) depths z."""
@@ -113,7 +114,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0,
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     R = np.stack([right, down, forward], axis=0)
-    return R, -R @ eye
+    return R, -apply3(R, eye[None, :])[0]
 
 
 def camera_rig(

@@ -53,7 +53,12 @@ def rest_geometry(mesh: ClothMesh) -> RestGeometry:
     dm[:, 1, 1] = cross / a
     hinges = find_hinges(cells)
     hinge_k, hinge_w = bending_stencils(x, hinges)
-    return RestGeometry(cells, np.linalg.inv(dm), 0.5 * cross, hinges, hinge_k, hinge_w)
+    # dm is upper triangular: its inverse written out (np.linalg.inv calls LAPACK, whose kernels differ per CPU)
+    dm_inv = np.zeros_like(dm)
+    dm_inv[:, 0, 0] = 1.0 / dm[:, 0, 0]
+    dm_inv[:, 0, 1] = -dm[:, 0, 1] / (dm[:, 0, 0] * dm[:, 1, 1])
+    dm_inv[:, 1, 1] = 1.0 / dm[:, 1, 1]
+    return RestGeometry(cells, dm_inv, 0.5 * cross, hinges, hinge_k, hinge_w)
 
 
 def find_hinges(cells: np.ndarray) -> np.ndarray:

@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from clods_bench.datasets import obstacle_kernels as ok
+from clods_bench.datasets.fixed_order import dot3
 from clods_bench.errors import ClodsError
 
 Vec3 = tuple[float, float, float]
@@ -267,7 +268,7 @@ class Capsule(MovingShape):
 
     def _closest_on_axis(self, y: np.ndarray) -> np.ndarray:
         a, e, length = self._axis()
-        s = np.clip((y - a[None, :]) @ e, 0.0, length)
+        s = np.clip(dot3(y - a[None, :], e), 0.0, length)
         return a[None, :] + s[:, None] * e[None, :]
 
     def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

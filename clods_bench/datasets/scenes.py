@@ -31,6 +31,7 @@ from clods_bench.datasets.cloths import (
     validate_cloth_mesh,
     validate_handle_motion,
 )
+from clods_bench.datasets.fixed_order import apply3
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.obstacle_nodes import append_obstacles
 from clods_bench.datasets.obstacles import Obstacle, ObstaclePath, Sphere, overlap
@@ -154,7 +155,7 @@ def initial_state(scene: SceneSpec, mesh: ClothMesh, rng: np.random.Generator) -
     anchor = rest[handles] if handles.any() else rest
     axis_xy = np.array([*anchor[:, :2].mean(axis=0), 0.0])
     angle = float(rng.uniform(*scene.rotation_range))
-    x0 = (rest - axis_xy) @ _rotation_z(angle).T + axis_xy
+    x0 = apply3(_rotation_z(angle), rest - axis_xy) + axis_xy
     # weight 0 at the handles growing to 1 at the farthest node (in rest space)
     if handles.any():
         dist = np.min(np.linalg.norm(rest[:, None, :] - anchor[None, :, :], axis=2), axis=1)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from clods_bench.datasets.fixed_order import dot3
+
 
 @dataclass(frozen=True)
 class WindField:
@@ -29,8 +31,12 @@ class WindField:
 
     def __call__(self, t: float, points: np.ndarray) -> np.ndarray:
         """Wind velocity (N,3) at time t and points (N,3)."""
-        arg = self.omegas[None, :] * t - points @ self.wavevecs.T + self.phases[None, :]
-        return self.mean[None, :] + np.sin(arg) @ self.amps
+        points = np.asarray(points, dtype=np.float64)
+        arg = self.omegas[None, :] * t - dot3(points[:, None, :], self.wavevecs[None, :, :]) + self.phases[None, :]
+        out = np.repeat(self.mean[None, :], points.shape[0], axis=0)
+        for k in range(self.omegas.shape[0]):  # mode by mode, as wind_kernel sums them (no BLAS: see fixed_order)
+            out += np.sin(arg[:, k])[:, None] * self.amps[k][None, :]
+        return out
 
 
 def make_wind_field(
@@ -55,7 +61,7 @@ def make_wind_field(
     along = mean / speed if speed > 1e-9 else np.array([1.0, 0.0, 0.0])
     advect = max(speed, 1.0)
     trans = rng.standard_normal((k, 3))
-    trans -= (trans @ along)[:, None] * along[None, :]
+    trans -= dot3(trans, along)[:, None] * along[None, :]
     wavevecs = (omegas / advect)[:, None] * (along[None, :] + 0.5 * trans)
     phases = rng.uniform(0.0, 2.0 * math.pi, k)
     return WindField(mean, amps, omegas, wavevecs, phases)
