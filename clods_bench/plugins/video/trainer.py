@@ -147,6 +147,12 @@ class WindowPredictor(abc.ABC, Generic[C]):
         c = self.cfg.context_frames
         return torch.nn.functional.mse_loss(model(window[:, :c]), window[:, c:])
 
+    def optimizer(self, model: nn.Module) -> tuple[torch.optim.Optimizer, Any]:
+        """The optimizer and its per-step learning-rate scheduler; default: Adam, one-cycle peaking at learning_rate."""
+        c = self.cfg
+        opt = torch.optim.Adam(model.parameters(), lr=c.learning_rate)
+        return opt, torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=c.learning_rate, total_steps=c.train_steps)
+
     def rollout(self, model: nn.Module, context: torch.Tensor, num_frames: int) -> torch.Tensor:
         """(N,num_frames,3,H,W) from the last C frames (N,C,3,H,W); default: blocks of C predictions fed back in."""
         x, out = context, []
@@ -164,8 +170,7 @@ class WindowPredictor(abc.ABC, Generic[C]):
         dev = torch_device(c.device, f"video_config.{self.name}.device")
         torch.manual_seed(self.seed)
         model = self.build_model().to(dev)
-        opt = torch.optim.Adam(model.parameters(), lr=c.learning_rate)
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=c.learning_rate, total_steps=c.train_steps)
+        opt, sched = self.optimizer(model)
         path = Path(ctx.work_dir) / self.checkpoint_file
         digest = config_digest(self.name, c, vids)
         step, losses, rng, before = 0, [], np.random.default_rng(ctx.seed), 0.0
