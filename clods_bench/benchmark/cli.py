@@ -31,7 +31,16 @@ def _add_config_args(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="clods-bench", description="Benchmark for learning cloth dynamics from multi-view video.")
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    parser.add_argument(
+        "--no-deterministic", action="store_true",
+        help="use the host CPU's own (fastest) floating-point paths; by default every command pins them so that it gives the "
+             "same bits on every x86-64 CPU with AVX2 (same as CLODS_BENCH_DETERMINISTIC=0; see `clods-bench numerics`)",
+    )  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("numerics", help="deterministic mode: the pinned floating-point paths, and those this process uses")
+    p.add_argument("--export", action="store_true", help="print the pins as shell `export` lines (for Python code that imports numpy first)")
+    p.set_defaults(func=cmd_numerics)
 
     p = sub.add_parser("list", help="plugins, scenes, tasks and presets")
     p.set_defaults(func=cmd_list)
@@ -223,6 +232,28 @@ def cmd_list(args: argparse.Namespace) -> int:
     for name in preset_names():
         table.add_row("preset", name, preset_description(name), "built-in")
     console.print(table)
+    return 0
+
+
+def cmd_numerics(args: argparse.Namespace) -> int:
+    from clods_bench import deterministic_mode as dm
+
+    if args.export:
+        for key, value in sorted(dm.pins().items()):
+            print(f"export {key}='{value}'")  # plain print: no line wrapping, the output is for `eval`
+        print(f"export {dm.SWITCH_ENV}=1")
+        return 0
+    from clods_bench.benchmark.determinism import effective_paths
+
+    info = dm.describe()
+    console.print(f"mode: {info['mode']} (CPU: {info['cpu']}; pins version {dm.PINS_VERSION}, {dm.threads()} thread(s) per job)"
+                  if dm.enabled() else f"mode: host paths (CPU: {info['cpu']}); deterministic mode is off ({dm.SWITCH_ENV}=0)", highlight=False)  # fmt: skip
+    for key, value in sorted((info.get("pins") or {}).items()):
+        console.print(f"  {key}={value}", highlight=False, markup=False)
+    missing = dm.missing_cpu_features()
+    if dm.enabled() and missing:
+        console.print(f"this CPU lacks {', '.join(missing)}: deterministic runs stop with an error here", highlight=False)
+    console.print("in use: " + ", ".join(f"{k}={v}" for k, v in effective_paths().items()), highlight=False)
     return 0
 
 
@@ -573,10 +604,35 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+COMPUTING_COMMANDS = ("data", "run", "reproduce", "bench")
+"""Commands whose numbers deterministic mode pins: they stop on a CPU it cannot pin (no AVX2)."""
+
+
+def _rerun_on_host_paths(argv: Sequence[str] | None) -> None:
+    """`--no-deterministic` in a process whose libraries are pinned already: run the same command in a fresh
+    interpreter with the pins undone (they are read once, when the libraries load)."""
+    import os
+
+    from clods_bench import deterministic_mode as dm
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "clods_bench.benchmark.cli", *args], dm.host_environ())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    from clods_bench import deterministic_mode as dm
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.no_deterministic and dm.enabled():
+        _rerun_on_host_paths(argv)
     try:
+        if args.command in COMPUTING_COMMANDS:
+            from clods_bench.benchmark.determinism import check_numeric_paths
+
+            check_numeric_paths()
         return int(args.func(args) or 0)
     except ClodsError as exc:
         if args.debug:

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import os
 import random
+from typing import Any
 
 import numpy as np
+
+from clods_bench.errors import ClodsError
 
 # The runner sets these before each seed; a seed's numbers then depend only on (config, seed, machine, thread count).
 SEED_ENV = "CLODS_BENCH_SEED"
@@ -29,6 +32,51 @@ def seed_everything(seed: int, torch_threads: int | None = None) -> None:
     torch.manual_seed(seed)
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
+    from clods_bench import deterministic_mode
+
+    if deterministic_mode.enabled() and hasattr(torch.backends.mkldnn, "deterministic"):
+        torch.backends.mkldnn.deterministic = True  # oneDNN's reductions in a fixed order whatever the thread count
     if torch.backends.cudnn.is_available():
         torch.backends.cudnn.deterministic = True
         torch.backends.cudnn.benchmark = False
+
+
+def check_numeric_paths() -> None:
+    """Raise a ClodsError when deterministic mode is on but cannot hold: a CPU without the pinned instruction set,
+    or numpy/torch/numba loaded before `clods_bench` set their pins. A no-op in host mode."""
+    from clods_bench import deterministic_mode as dm
+
+    if not dm.enabled():
+        return
+    hint = f"run with --no-deterministic (or {dm.SWITCH_ENV}=0): the host's own paths, whose numbers are not the committed tables' bits"
+    missing = dm.missing_cpu_features()
+    if missing:
+        raise ClodsError(f"deterministic mode pins AVX2 code paths, and this CPU ({dm.cpu_model()}) lacks {', '.join(missing)}", where="CPU", hint=hint)
+    late = dm.loaded_too_early()
+    if late:
+        raise ClodsError(
+            f"{', '.join(late)} loaded before clods_bench, so deterministic mode could not pin {'its' if len(late) == 1 else 'their'} floating-point paths",
+            where="import order", hint="import clods_bench first, or set the variables of `clods-bench numerics --export` before Python starts",
+        )  # fmt: skip
+
+
+def effective_paths() -> dict[str, Any]:
+    """The code paths the numeric libraries actually use in this process (imports numpy, torch and numba)."""
+    import numba
+    import torch
+
+    try:
+        from numpy._core import _multiarray_umath as umath  # numpy >= 2
+    except ImportError:  # pragma: no cover - numpy 1.26
+        from numpy.core import _multiarray_umath as umath
+    features, targets = umath.__cpu_features__, umath.__cpu_dispatch__
+    above_avx2 = [t for t in targets if t.startswith(("X86_V4", "AVX512"))]
+    return {
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "torch_threads": torch.get_num_threads(),
+        "numpy_dispatch_above_avx2": sorted(t for t in above_avx2 if features.get(t)),
+        "numba_cpu_name": numba.config.CPU_NAME or "host",
+        "numba_threads": numba.get_num_threads(),
+        "mkl_cbwr": os.environ.get("MKL_CBWR", "host"),
+        "onednn_max_isa": os.environ.get("ONEDNN_MAX_CPU_ISA", "host"),
+    }

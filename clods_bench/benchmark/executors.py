@@ -24,6 +24,7 @@ from typing import Any, Callable, Literal, Sequence
 from rich.console import Console
 from rich.progress import Progress
 
+from clods_bench import deterministic_mode
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
 from clods_bench.benchmark.records import load_seed_result, record_dir
 from clods_bench.errors import ClodsError
@@ -105,6 +106,14 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+def worker_threads(jobs: int) -> int:
+    """Threads of each of `jobs` parallel workers: deterministic mode's fixed count (the numbers depend on it), else
+    the cores shared out, max(1, cores // jobs)."""
+    if deterministic_mode.enabled():
+        return deterministic_mode.threads()
+    return max(1, (os.cpu_count() or 1) // int(jobs))
+
+
 def _init_worker(threads: int, parent: int | None = None) -> None:
     """Start of a parallel worker process: die with its parent (`_die_with_parent`), cap torch's threads (every later
     setting too, see `clods_bench.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
@@ -158,7 +167,7 @@ class LocalExecutor:
                     out[i] = fn(item)
                     bar.advance(task)
             return out
-        threads = max(1, (os.cpu_count() or 1) // self.jobs)
+        threads = worker_threads(self.jobs)
         results: list[Any] = [None] * len(items)
         ctx = multiprocessing.get_context("spawn")  # a fresh interpreter per worker: no forked torch/numba state
         pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=_init_worker, initargs=(threads, os.getpid()))

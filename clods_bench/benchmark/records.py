@@ -15,6 +15,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
+from clods_bench import deterministic_mode
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.config import RunConfig
 from clods_bench.benchmark.descriptors import TaskResult
@@ -56,6 +57,8 @@ def record_dir(cfg: RunConfig) -> Path:
         ident.pop("video_config")
     else:
         ident["video_config"] = {cfg.predictor: ident["video_config"].get(cfg.predictor, {})}
+    if deterministic_mode.numeric_mode() != "deterministic":  # the host's own floating-point paths: never mixed with
+        ident["numeric_mode"] = deterministic_mode.numeric_mode()  # deterministic records (those keep their digest)
     digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:8]
     slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg).replace("*", "-star"))
     return Path(cfg.runs_dir) / cfg.task / slug / f"{cfg.data.scene}-{cfg.preset}-{digest}"
@@ -77,7 +80,7 @@ def load_seed_result(rdir: Path, seed: int) -> dict[str, Any] | None:
 
 
 def save_seed_result(rdir: Path, seed: int, result: TaskResult) -> dict[str, Any]:
-    payload = {"seed": seed, **asdict(result), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    payload = {"seed": seed, **asdict(result), "numerics": deterministic_mode.describe(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
     write_json(seed_result_path(rdir, seed), payload)
     return json.loads(json.dumps(payload, default=str))
 
@@ -107,6 +110,7 @@ def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], e
         "per_seed": {str(s): {"metrics": per_seed[s]["metrics"], "timings": per_seed[s]["timings"], "extra": per_seed[s].get("extra", {})} for s in seeds},
         "config": cfg.to_dict(),
         "versions": package_versions(),
+        "numerics": deterministic_mode.describe(),
         "commit": git_commit(),
         "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }

@@ -11,7 +11,7 @@ from rich.console import Console
 
 from clods_bench.benchmark.config import RunConfig, save_config
 from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.determinism import seed_everything
+from clods_bench.benchmark.determinism import check_numeric_paths, seed_everything
 from clods_bench.benchmark.records import aggregate, load_seed_result, record_dir, save_seed_result
 from clods_bench.benchmark.registry import Registry
 from clods_bench.errors import ClodsError
@@ -97,6 +97,7 @@ def run_task(
 ) -> Path:
     """Run every seed of `cfg.task` not already finished; return the record directory."""
     console = console or Console(stderr=True)
+    check_numeric_paths()
     check_plugins(cfg, registry)
     cfg = resolve_plugin_configs(cfg, registry)
     task = registry.get("task", cfg.task)

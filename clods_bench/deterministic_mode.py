@@ -1,0 +1,167 @@
+"""Deterministic mode: the same command gives the same bits on every x86-64 CPU with AVX2 (on by default).
+
+Every numeric library below picks a floating-point code path by the CPU it runs on (instruction set, vendor) and
+by its thread count, and reads an environment variable that pins it once, when it loads. `apply()` sets them
+before clods-bench imports numpy, torch or numba (it runs when the `clods_bench` package is imported), and worker
+processes inherit them:
+
+| library (what it computes here)          | variable                 | pinned to                        |
+| ---------------------------------------- | ------------------------ | -------------------------------- |
+| MKL (torch's matrix products, exp, ...)   | MKL_CBWR                 | COMPATIBLE (the AVX2 branch is    |
+|                                          |                          | not honoured on AMD CPUs)        |
+| oneDNN (torch's convolutions)            | ONEDNN_MAX_CPU_ISA       | AVX2                             |
+| ATen's vectorised kernels (torch)        | ATEN_CPU_CAPABILITY      | avx2                             |
+| numba (splatting, rasterizer, solver)    | NUMBA_CPU_NAME           | haswell                          |
+| numpy's SIMD dispatch                    | NPY_DISABLE_CPU_FEATURES | every target above AVX2          |
+| OpenBLAS (numpy, scipy)                  | OPENBLAS_CORETYPE        | Haswell (unless set already)     |
+| threads (OpenMP, MKL, OpenBLAS, numba,   | OMP_NUM_THREADS, ...     | CLODS_BENCH_THREADS (default 1)  |
+| torch)                                   |                          | per job                          |
+
+`CLODS_BENCH_DETERMINISTIC=0` (or `clods-bench --no-deterministic`) leaves every library on the host's own
+(fastest) paths; records and caches made that way are kept apart from deterministic ones.
+This module imports nothing numeric: it must run before those libraries load.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+from typing import Any
+
+SWITCH_ENV = "CLODS_BENCH_DETERMINISTIC"
+THREADS_ENV = "CLODS_BENCH_THREADS"
+PINS_VERSION = 1
+"""Bumped whenever the pins change: numbers made under other pins are not comparable bit for bit."""
+
+NUMERIC_MODULES = ("numpy", "torch", "numba", "scipy")
+_FALSE = ("0", "false", "no", "off")
+
+# numpy's dispatch targets above AVX2 (numpy 2.x names first, then numpy 1.26's); unknown names are ignored by numpy.
+_NUMPY_ABOVE_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL"
+
+_original: dict[str, str | None] = {}
+_state: dict[str, Any] = {"applied": False, "late": []}
+
+
+def enabled() -> bool:
+    """Whether deterministic mode is on: unless $CLODS_BENCH_DETERMINISTIC says 0/false/no/off."""
+    return os.environ.get(SWITCH_ENV, "1").strip().lower() not in _FALSE
+
+
+def threads() -> int:
+    """Threads per job in deterministic mode: $CLODS_BENCH_THREADS (default 1; a bad value counts as 1)."""
+    try:
+        n = int(os.environ.get(THREADS_ENV, "1"))
+    except ValueError:
+        return 1
+    return n if n >= 1 else 1
+
+
+def pins(n_threads: int | None = None) -> dict[str, str]:
+    """The environment deterministic mode sets (OPENBLAS_CORETYPE only when not set already)."""
+    n = str(threads() if n_threads is None else int(n_threads))
+    env = {
+        "MKL_CBWR": "COMPATIBLE",
+        "ONEDNN_MAX_CPU_ISA": "AVX2",
+        "DNNL_MAX_CPU_ISA": "AVX2",
+        "ATEN_CPU_CAPABILITY": "avx2",
+        "NUMBA_CPU_NAME": "haswell",
+        "NPY_DISABLE_CPU_FEATURES": _NUMPY_ABOVE_AVX2,
+        "OMP_NUM_THREADS": n,
+        "MKL_NUM_THREADS": n,
+        "OPENBLAS_NUM_THREADS": n,
+        "NUMBA_NUM_THREADS": n,
+        "CLODS_BENCH_MAX_THREADS": n,
+    }
+    env["OPENBLAS_CORETYPE"] = _openblas_core()
+    return env
+
+
+def _openblas_core() -> str:
+    """OpenBLAS's kernel: one the environment chose (some hosts set a safe one), else Haswell's (every AVX2 CPU runs it).
+    No number of clods-bench goes through OpenBLAS (the data generator writes its small products out), so it is pinned
+    for numpy's and scipy's own consistency only."""
+    before = _original["OPENBLAS_CORETYPE"] if "OPENBLAS_CORETYPE" in _original else os.environ.get("OPENBLAS_CORETYPE")
+    return before or "Haswell"
+
+
+def apply() -> None:
+    """Set the pins in `os.environ` (once; a no-op when the mode is off), noting any numeric library loaded before."""
+    if _state["applied"] or not enabled():
+        return
+    _state["late"] = [m for m in NUMERIC_MODULES if m in sys.modules]
+    for key, value in pins().items():
+        _original.setdefault(key, os.environ.get(key))
+        os.environ[key] = value
+    _state["applied"] = True
+
+
+def host_environ() -> dict[str, str]:
+    """`os.environ` as it was before `apply()`, with the mode switched off: for re-running a command on host paths."""
+    env = dict(os.environ)
+    for key, value in _original.items():
+        if value is None:
+            env.pop(key, None)
+        else:
+            env[key] = value
+    env[SWITCH_ENV] = "0"
+    return env
+
+
+_PINNED_BY = {"numpy": ("NPY_DISABLE_CPU_FEATURES",), "torch": ("MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY"),
+              "numba": ("NUMBA_CPU_NAME",), "scipy": ("OPENBLAS_CORETYPE",)}
+
+
+def loaded_too_early() -> list[str]:
+    """Numeric libraries imported before `apply()` whose pins were not in the environment already (`clods-bench
+    numerics --export`): they run on the host's paths."""
+    return [m for m in _state["late"] if any(_original.get(k) != os.environ.get(k) for k in _PINNED_BY[m])]
+
+
+def cpu_flags() -> set[str] | None:
+    """The CPU's feature flags from /proc/cpuinfo (Linux), or None where they cannot be read."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        return None
+    return None
+
+
+def missing_cpu_features() -> list[str]:
+    """What this CPU lacks for the pinned paths: x86-64 itself, or AVX2/FMA/F16C (empty when all is there or unknown)."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return [f"x86-64 (this CPU is {platform.machine() or 'unknown'})"]
+    flags = cpu_flags()
+    if flags is None:
+        return []
+    return [f for f in ("avx2", "fma", "f16c") if f not in flags]
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux /proc/cpuinfo), else `platform.processor()`."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def numeric_mode() -> str:
+    """'deterministic' or 'host': joins the identity of records and caches, so the two never mix."""
+    return "deterministic" if enabled() else "host"
+
+
+def describe() -> dict[str, Any]:
+    """What a record says of the numeric paths it was made with (no library is imported)."""
+    out: dict[str, Any] = {"mode": numeric_mode(), "cpu": cpu_model()}
+    if enabled():
+        out.update({"pins_version": PINS_VERSION, "threads": threads(),
+                    "pins": {k: os.environ.get(k) for k in sorted(pins())}})  # fmt: skip
+    return out
