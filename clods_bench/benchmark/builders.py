@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from clods_bench.atomic import file_lock
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.config import DataConfig
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.fit_cache import fit_work_dir, sim_fit_identity
@@ -69,6 +70,7 @@ def fit_on_meshes(
     with file_lock(work / "fit.lock"):  # a parallel job training the same fit: wait, then resume its finished checkpoint
         fit_ctx = FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress, snapshot_every=int(snapshot_every))
         stats = sim.fit(train, fit_ctx) or {}
+    stage_digests.record("fit", sim)
     return list(train_ids), dict(stats), time.perf_counter() - t0, work
 
 
@@ -91,4 +93,6 @@ def as_images(out: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
         raise ClodsError(f"render returned shape {arr.shape}, expected {shape}", where=where)
     if not np.isfinite(arr).all():
         raise ClodsError("render returned NaN/Inf pixels", where=where)
-    return np.clip(arr.astype(np.float32), 0.0, 1.0)
+    images = np.clip(arr.astype(np.float32), 0.0, 1.0)
+    stage_digests.record("rollout", images)
+    return images

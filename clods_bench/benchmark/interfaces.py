@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from clods_bench.benchmark import stage_digests
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 
@@ -116,7 +117,9 @@ def check_rollout(out: Any, inp: RolloutInput, sim_name: str) -> np.ndarray:
     expected = (inp.num_frames, inp.node_type.shape[0], 3)
     if arr.shape != expected:
         raise ClodsError(f"rollout returned shape {arr.shape}, expected {expected}", where=f"simulator '{sim_name}'")
-    return arr.astype(np.float32, copy=False)
+    out = arr.astype(np.float32, copy=False)
+    stage_digests.record("rollout", out)
+    return out
 
 
 @runtime_checkable
@@ -158,4 +161,6 @@ def check_prediction(out: Any, context: np.ndarray, num_frames: int, predictor: 
         raise ClodsError(f"predict returned shape {arr.shape}, expected {expected}", where=f"video predictor '{predictor}'")
     if not np.isfinite(arr).all():
         raise ClodsError("predict returned NaN/Inf pixels", where=f"video predictor '{predictor}'")
-    return np.clip(arr.astype(np.float32, copy=False), 0.0, 1.0)
+    frames = np.clip(arr.astype(np.float32, copy=False), 0.0, 1.0)
+    stage_digests.record("rollout", frames)
+    return frames

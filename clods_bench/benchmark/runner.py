@@ -9,11 +9,14 @@ from typing import Any, Callable
 
 from rich.console import Console
 
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.config import RunConfig, save_config
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.determinism import check_numeric_paths, seed_everything
 from clods_bench.benchmark.records import aggregate, load_seed_result, record_dir, save_seed_result
 from clods_bench.benchmark.registry import Registry
+from clods_bench.datasets.digest import content_digest
+from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 
 
@@ -125,9 +128,15 @@ def run_task(
         work = rdir / f"seed_{seed}"
         work.mkdir(parents=True, exist_ok=True)
         seed_everything(seed)
-        t0 = time.perf_counter()
-        result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))
+        t0, c0 = time.perf_counter(), time.process_time()
+        with stage_digests.collecting() as digests:
+            for d in [cfg.data, *task_datasets(cfg, registry)]:
+                stage_digests.record("data", content_digest(DatasetStore.open(d.dataset_dir())))
+            result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))
+            stage_digests.record("score", result.metrics)
+        result.extra["stage_digests"] = digests.result()
         result.timings.setdefault("seed_seconds", time.perf_counter() - t0)
+        result.timings.setdefault("seed_cpu_seconds", time.process_time() - c0)  # this process's CPU time: robust to a loaded host
         per_seed[seed] = save_seed_result(rdir, seed, result)
     aggregate(cfg, rdir, per_seed, run_timings)
     return rdir

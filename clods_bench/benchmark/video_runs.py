@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from clods_bench.atomic import atomic_path, file_lock
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.builders import build_renderer, build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
@@ -57,6 +58,7 @@ def fit_predictor(
     t0 = time.perf_counter()
     with file_lock(Path(work) / "fit.lock"):  # a parallel job training the same fit: wait, then load its checkpoint
         stats = dict(pred.fit(videos, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {})
+    stage_digests.record("fit", pred)
     wall = time.perf_counter() - t0
     return stats, {"fit_seconds": fit_cost_seconds(wall, stats), "fit_wall_seconds": wall}
 
@@ -208,6 +210,7 @@ def fit_renderer(ctx: TaskContext, trajs: list[Any], images: np.ndarray, train_c
     renderer = build_renderer(ctx)
     verts = np.stack([t.world_pos[0] for t in trajs]).astype(np.float32)
     stats = renderer.fit(verts, trajs[0].cells, trajs[0].mesh_pos, images, train_cams)
+    stage_digests.record("renderer fit", renderer)
     return renderer, dict(stats or {})
 
 

@@ -83,3 +83,40 @@ def compare_digests(ours: dict[str, Any], theirs: dict[str, Any]) -> list[str]:
         if "frames" in ta and "frames" in tb and ta["frames"] != tb["frames"]:
             problems.append(f"trajectory {key}: rendered frames differ")
     return problems
+
+
+CONTENT_DIGEST_FILE = "content_digest.json"
+FRAMES_DIGEST_MAX_BYTES = 2**30
+"""Decoded frames larger than this (1 GiB) are left out of `content_digest` (the `paper` preset's 23 GB a
+trajectory): the meshes then stand for the dataset."""
+
+
+def content_digest(store: DatasetStore) -> str:
+    """One 16-hex-digit digest of a complete dataset's arrays (meshes, and frames up to FRAMES_DIGEST_MAX_BYTES),
+    computed once and kept in the dataset folder (a complete dataset never changes; `data generate --force` removes
+    the folder with it)."""
+    import json
+
+    from clods_bench.atomic import write_json
+
+    path = store.root / CONTENT_DIGEST_FILE
+    try:
+        return str(json.loads(path.read_text())["digest"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    frames = _stored_frames_bytes(store) <= FRAMES_DIGEST_MAX_BYTES
+    full = dataset_digest(store, frames=frames)
+    short = hashlib.sha256(json.dumps(full, sort_keys=True).encode()).hexdigest()[:SHORT]
+    write_json(path, {"version": DIGEST_VERSION, "frames": frames, "digest": short})
+    return short
+
+
+def _stored_frames_bytes(store: DatasetStore) -> float:
+    """Bytes of every complete trajectory's decoded frames (inf when a trajectory has none stored: videos rendered
+    on demand, or meshes alone)."""
+    total = 0
+    for index in store.completed_indices():
+        if "frames" not in store.entry(index).get("files", {}):
+            return float("inf")
+        total += int(np.prod(store.frames(index).shape))
+    return total

@@ -16,6 +16,7 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clods_bench.atomic import file_lock
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.clods.cache import ExtractionCache, digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
@@ -135,6 +136,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
         identity = extraction_identity("per-video", opts, cfg.data.identity(), frames, views)
         dt_meta = [(g.dt, g.meta) for g in gts] if gts else [(store.dt(i), store.meta(i)) for i in train_ids]
         meshes, stats, egt, key, renderers = extract_reconstructed(ctx, opts, train_ids, gts, videos, cams, identity, seed, dt_meta)
+        stage_digests.record("extraction", [m.world_pos for m in meshes])
         return Extraction(meshes, gts, stats, egt, key, renderers)
     if not gts:
         raise ClodsError(f"the dataset has no meshes (imported from video), and initial_mesh={opts.initial_mesh} starts stage 2 from "
@@ -160,6 +162,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
                 cached += cache.load(i) is not None
                 extracted.append(extract_trajectory(renderer, cams, video, init, g.cells, g.node_type, opts, cache, i, bar, predict))
     stats["stage2_wall_seconds"] = time.perf_counter() - t0
+    stage_digests.record("extraction", [e.world_pos for e in extracted])
 
     egt = np.stack([rmse_per_step(e.world_pos, g.world_pos, cloth_nodes(g.node_type)) for e, g in zip(extracted, gts)])  # (B, frames)
     stats.update(stage2_stats(extracted, egt, cached))

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from clods_bench.atomic import atomic_path, file_lock, write_json
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.descriptors import TaskContext
@@ -88,6 +89,7 @@ def fit_stage1_keyed(
                 cost = float(json.loads(cost_file.read_text())["seconds"])
             except (OSError, ValueError, KeyError, TypeError):
                 cost = float("nan")
+            stage_digests.record("renderer fit", renderer)
             return renderer, {"stage1_seconds": 0.0, "stage1_cost_seconds": cost, "stage1_cached": 1.0}, key
         renderer = build_renderer(dataclasses.replace(ctx, seed=seed))
         if getattr(renderer, "per_frame", False):
@@ -101,6 +103,7 @@ def fit_stage1_keyed(
         write_json(cost_file, {"seconds": seconds})
         out = {"stage1_seconds": seconds, "stage1_cost_seconds": seconds, "stage1_cached": 0.0}
         out.update({f"stage1/{k}": float(v) for k, v in stats.items()})
+        stage_digests.record("renderer fit", renderer)
         return renderer, out, key
 
 

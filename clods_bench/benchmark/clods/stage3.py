@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from clods_bench.atomic import file_lock
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
@@ -104,6 +105,7 @@ def train_simulator(
     t0 = time.perf_counter()
     with file_lock(work / "fit.lock"):
         fit_stats = sim.fit(list(meshes), FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
+    stage_digests.record("fit", sim)
     wall = time.perf_counter() - t0
     stats["stage3_seconds"] = wall
     stats["stage3_cost_seconds"] = fit_cost_seconds(wall, fit_stats)

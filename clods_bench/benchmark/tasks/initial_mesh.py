@@ -16,6 +16,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.builders import split_spec
 from clods_bench.benchmark.clods.stage0 import Stage0Config, foreground_masks, reconstruct_initial_mesh
 from clods_bench.benchmark.config import dataclass_from_dict
@@ -62,6 +63,7 @@ def run_initial_mesh(ctx: TaskContext) -> TaskResult:
         t0 = time.perf_counter()
         mesh, stats = reconstruct_initial_mesh(images, cameras, opts, opts.num_nodes or truth.num_nodes)
         seconds.append(time.perf_counter() - t0)
+        stage_digests.record("extraction", [mesh.rest_pos, mesh.cells])
         nodes.append(mesh.num_nodes)
         per_traj[str(i)] = {"nodes": mesh.num_nodes, **stats}
         if truth is not None:

@@ -34,6 +34,7 @@ import torch
 from rich.progress import Progress
 
 from clods_bench.atomic import atomic_path
+from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.config import dataclass_from_dict
 from clods_bench.benchmark.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.descriptors import TaskContext, TaskResult
@@ -211,6 +212,7 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
                     fit_verts = verts if per_frame else traj.world_pos[0].astype(np.float32)
                     t0 = time.perf_counter()
                     stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
+                    stage_digests.record("renderer fit", renderer)
                     state["fit_seconds"] += time.perf_counter() - t0
                     state["fits"] += 1
                     state["fit_stats"].append({k: float(v) for k, v in (stats or {}).items()})
