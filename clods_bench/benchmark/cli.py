@@ -36,6 +36,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="use the host CPU's own (fastest) floating-point paths; by default every command pins them so that it gives the "
              "same bits on every x86-64 CPU with AVX2 (same as CLODS_BENCH_DETERMINISTIC=0; see `clods-bench numerics`)",
     )  # fmt: skip
+    parser.add_argument(
+        "--strict-plugins", action="store_true",
+        help="stop with an error when an installed plugin fails to load (by default it is named in a warning and left "
+             "out); same as CLODS_BENCH_STRICT_PLUGINS=1, which CI sets",
+    )  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("numerics", help="deterministic mode: the pinned floating-point paths, and those this process uses")
@@ -220,18 +225,22 @@ def _config(args: argparse.Namespace, **fields):
 
 
 def cmd_list(args: argparse.Namespace) -> int:
+    from clods_bench import __version__
+    from clods_bench.api_version import API_VERSION
     from clods_bench.benchmark.config import preset_description, preset_names
+    from clods_bench.benchmark.plugin_report import print_problems, source_label
 
     reg = _registry()
-    table = Table(title="clods-bench: what is installed")
+    table = Table(title=f"clods-bench {__version__} (plugin API {API_VERSION}): what is installed")
     for col in ("kind", "name", "description", "from"):
         table.add_column(col)
     for kind in ("task", "simulator", "renderer", "video_predictor", "scene"):
         for name in reg.names(kind):
-            table.add_row(kind, name, reg.get(kind, name).description, reg.origins[(kind, name)])
+            table.add_row(kind, name, reg.get(kind, name).description, source_label(reg, kind, name))
     for name in preset_names():
         table.add_row("preset", name, preset_description(name), "built-in")
     console.print(table)
+    print_problems(console, reg)
     return 0
 
 
@@ -633,7 +642,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from clods_bench.benchmark.determinism import check_numeric_paths
 
             check_numeric_paths()
-        return int(args.func(args) or 0)
+        from clods_bench.benchmark.plugin_report import plugin_options
+
+        with plugin_options(args.strict_plugins, err_console):
+            return int(args.func(args) or 0)
     except ClodsError as exc:
         if args.debug:
             raise

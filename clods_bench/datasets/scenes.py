@@ -18,6 +18,7 @@ import math
 import sys
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,14 @@ from clods_bench.datasets.cloths import (
     validate_handle_motion,
 )
 from clods_bench.datasets.fixed_order import apply3
+from clods_bench.datasets.legacy_scenes import (
+    adopt_build_mesh_override,
+    bind_legacy_cloth,
+    is_legacy_call,
+    legacy_size,
+    old_base_mesh,
+    translate_legacy_call,
+)
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.obstacle_nodes import append_obstacles
 from clods_bench.datasets.obstacles import Obstacle, ObstaclePath, Sphere, overlap
@@ -39,8 +48,20 @@ from clods_bench.datasets.types import NORMAL, ClothMesh, Trajectory
 from clods_bench.errors import ClodsError, unknown_name
 
 
+class _SceneSpecType(type):
+    """Accepts the deprecated pre-1.0 call `SceneSpec(kind=...)` (`legacy_scenes`), for subclasses whose own
+    dataclass `__init__` would refuse it too, and ties a deprecated `build_mesh` override's cloth to its scene."""
+
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        if is_legacy_call(args, kwargs):
+            args, kwargs = (), translate_legacy_call(cls, args, kwargs, stacklevel=2)
+        scene = super().__call__(*args, **kwargs)
+        bind_legacy_cloth(scene)
+        return scene
+
+
 @dataclass(frozen=True)
-class SceneSpec:
+class SceneSpec(metaclass=_SceneSpecType):
     """A named scene: its cloth (a `Cloth` plugin), physics, time step, what it contains, and per-trajectory random ranges."""
 
     name: str
@@ -66,6 +87,10 @@ class SceneSpec:
     obstacles: tuple[Obstacle, ...] = ()
     """Rigid obstacles (`clods_bench.datasets.obstacles`), static or on a path; set exactly when `has_obstacles`.
     The solver collides the cloth with them; each trajectory stores them as OBSTACLE nodes after the cloth's."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        adopt_build_mesh_override(cls)  # deprecated extension point: the override becomes the cloth's mesh
 
     def __post_init__(self) -> None:
         where = f"scene {self.name}"
@@ -98,6 +123,11 @@ class SceneSpec:
         """The cloth's resolution when the config names none."""
         return self.cloth.default_resolution
 
+    @property
+    def size(self) -> tuple[float, float] | None:
+        """The cloth's size, if it has one: kept for `build_mesh` overrides written for the pre-1.0 form (deprecated)."""
+        return legacy_size(self.cloth)
+
     def build_mesh(self, resolution: Resolution | None = None) -> ClothMesh:
         """The scene's validated cloth mesh at `resolution` (None: the cloth's default); one ClodsError naming the scene if bad.
 
@@ -105,6 +135,9 @@ class SceneSpec:
         FLAGSIMPLE size, 48 x 33 = 1584 nodes); a `MeshCloth` has one resolution.
         """
         where = f"scene {self.name}"
+        old = old_base_mesh(self, resolution)  # `super().build_mesh()` inside a deprecated override
+        if old is not None:
+            return old
         try:
             mesh = self.cloth.build(resolution)
         except ClodsError as exc:
