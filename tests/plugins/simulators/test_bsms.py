@@ -1,15 +1,18 @@
-"""BSMS processor: equivariance, batching, gradients and its multi-scale receptive field, checked by brute force."""
+"""BSMS processor: equivariance, batching, gradients, its U-Net wiring by brute force, and its structure pinned."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.simulators.learned.bsms import BsmsProcessor
+from clods_bench.plugins.simulators.learned.bsms import BsmsProcessor, build_bsms
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
 from tests.plugins.simulators.graph_fixtures import jittered_mesh, make_inputs, permute_inputs, union_inputs
+from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, PINNED, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 LATENT = 16
 
@@ -49,14 +52,15 @@ def test_batched_union_equals_separate_meshes():
 
 
 def test_dependency_pattern_matches_the_u_net_wiring():
-    """With one level, node i depends on x through (A+I) U (C+I) P (A+I) + (A+I) (down, pool, bottom, unpool, up, skip)."""
+    """With one level, node i depends on x through (A+I) U (C+I) P (A+I) + (A+I) (down, pool, bottom, unpool, up, skip);
+    BSMS pools over in-edges only (P holds no node's own value) and unpools along the same edges (U = P's pattern, transposed)."""
     s, r, pos = jittered_mesh(14, 3, seed=4)
     n = len(pos)
     nodes, inputs = make_inputs(s, r, pos, LATENT, seed=4, key="a")
     nodes.requires_grad_(True)
     proc = processor(levels=1)
     out = proc(nodes, inputs)
-    h = proc.hierarchies.get("a", *inputs.edge_sets["mesh"][1:], inputs.mesh_pos)
+    h = proc.levels.get("a", *inputs.edge_sets["mesh"][1:], inputs.mesh_pos)
 
     def dense(rows: int, cols: int, dst: torch.Tensor, src: torch.Tensor) -> np.ndarray:
         m = np.zeros((rows, cols), dtype=bool)
@@ -77,23 +81,33 @@ def test_dependency_pattern_matches_the_u_net_wiring():
     assert expected[0].sum() > fine[0].sum() + 8  # the coarse level reaches well past the 1-ring
 
 
-def test_world_edges_are_used_at_the_mesh_level_only():
+def test_contact_edges_only_at_the_mesh_level_and_read_from_positions():
     s, r, pos = jittered_mesh(6, 4, seed=5)
     world = (np.array([0, 23]), np.array([23, 0]))
     nodes, inputs = make_inputs(s, r, pos, LATENT, seed=5, key="a", world=world)
     proc = processor(levels=2, edge_sets=("mesh", "world"))
-    world_params = [n for n, _ in proc.named_parameters() if "world" in n]
-    assert world_params and all(n.startswith(("down.0.", "up.0.")) for n in world_params)
-    assert not any("world" in n for n, _ in processor(levels=2).named_parameters())
+    contact = [n for n, _ in proc.named_parameters() if ".contact." in n]
+    assert contact and all(n.startswith(("down.0.", "up.0.")) for n in contact)
+    assert not any(".contact." in n for n, _ in processor(levels=2).named_parameters())
     out = proc(nodes, inputs)
     w = inputs.edge_sets["world"]
-    inputs.edge_sets["world"] = w._replace(features=w.features + 1.0)
+    inputs.edge_sets["world"] = w._replace(features=w.features + 1.0)  # encoded features are not read: fibres are
+    torch.testing.assert_close(proc(nodes, inputs), out, rtol=0, atol=0)
+    inputs.edge_sets["world"] = w._replace(senders=w.senders[:0], receivers=w.receivers[:0], features=w.features[:0])
     assert (proc(nodes, inputs) - out).abs().max() > 1e-3
 
 
-@pytest.mark.parametrize("field,value", [("levels", -1), ("blocks_per_level", 0), ("bottom_blocks", 1.5)])
+@pytest.mark.parametrize("field,value", [("levels", -1), ("levels", 1.5)])
 def test_bad_config_raises(field, value):
     with pytest.raises(ClodsError, match=field):
         BsmsProcessor(LATENT, 1, ["mesh"], BsmsConfig(latent_size=LATENT, **{field: value}))
     with pytest.raises(ClodsError):
         BsmsProcessor(LATENT, 1, ["world"])
+
+
+def test_structure_at_ci_widths_is_pinned():
+    """Parameter count (by formula: 2 levels + 1 GMPs, no edge encoder) and one fixed-seed float64 output (committed)."""
+    count, value = fixed_evaluation(build_bsms(BsmsConfig(**CI_WIDTHS, levels=3), SimpleNamespace(scene=PINNED)))
+    gmp = mlp_parameters(6 + 2 * 64, 64, 2, 64, False) + mlp_parameters(2 * 64, 64, 2, 64, False)  # fibre (5 + norm), no LN affine
+    assert count == shared_parameters(64, 2, encoded_edges=False) + (2 * 3 + 1) * gmp == 252547
+    assert_close(value, 38.7205266535034)

@@ -1,4 +1,5 @@
-"""DHMP processor: its blocks against brute force, the relaxed selection's gradient, a per-input hierarchy, training."""
+"""DHMP processor: its level transitions against brute force, the relaxed selection's gradient, a per-input
+hierarchy, its structure pinned, training."""
 
 from __future__ import annotations
 
@@ -15,7 +16,6 @@ from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.simulators.learned.dhmp import DhmpProcessor, build_dhmp
 from clods_bench.plugins.simulators.learned.dhmp_ops import (
-    AnisotropicLayer,
     expand,
     reduce,
     relaxed_keep,
@@ -23,11 +23,12 @@ from clods_bench.plugins.simulators.learned.dhmp_ops import (
     top_fraction,
     two_hop_edges_among,
 )
-from clods_bench.plugins.simulators.learned.graph import EdgeSet
+from clods_bench.plugins.simulators.learned.gmp import WeightedGmp
 from clods_bench.plugins.simulators.learned.hierarchy import _adjacency, two_hop_edges
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 from clods_bench.plugins.simulators.learned.unet_configs import DhmpConfig
 from tests.plugins.simulators.graph_fixtures import jittered_mesh, make_inputs, permute_inputs, union_inputs
+from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 LATENT = 16
 PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=True)
@@ -63,44 +64,21 @@ def test_reduce_and_expand_on_a_toy_graph_against_loops():
     r = torch.tensor([1, 0, 2, 1, 3, 2, 0, 1, 2, 3])
     w = torch.rand(10, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     x = torch.randn(4, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    edges = EdgeSet(torch.zeros(10, 1), s, r)
     down, up = torch.zeros(4, 3, dtype=torch.float64), torch.zeros(4, 3, dtype=torch.float64)
     for e in range(10):
         down[r[e]] += w[e] * x[s[e]]
         up[s[e]] += w[e] * x[r[e]]
-    torch.testing.assert_close(reduce(x, edges, w), down)
-    torch.testing.assert_close(expand(x, edges, w), up)
+    torch.testing.assert_close(reduce(x, s, r, w), down)
+    torch.testing.assert_close(expand(x, s, r, w), up)
     # pooling keeps rows of REDUCE, unpooling writes them back over zeros before EXPAND
     kept = torch.tensor([1, 3])
-    coarse = reduce(x, edges, w)[kept]
+    coarse = reduce(x, s, r, w)[kept]
     fine = torch.zeros(4, 3, dtype=torch.float64).index_copy(0, kept, coarse)
     want = torch.zeros(4, 3, dtype=torch.float64)
     for e in range(10):
         if int(r[e]) in (1, 3):
             want[s[e]] += w[e] * coarse[[1, 3].index(int(r[e]))]
-    torch.testing.assert_close(expand(fine, edges, w), want)
-
-
-def test_anisotropic_layer_against_brute_force():
-    torch.manual_seed(2)
-    layer = AnisotropicLayer(4, 1, scores=True).double()
-    s = torch.tensor([0, 1, 1, 2, 0, 1, 2])
-    r = torch.tensor([1, 0, 2, 1, 0, 1, 2])
-    x = torch.randn(3, 4, dtype=torch.float64)
-    e = torch.randn(7, 4, dtype=torch.float64)
-    out, w, scores = layer(x, EdgeSet(e, s, r))
-    with torch.no_grad():
-        lat = [layer.edge_fn.mlp(torch.cat([x[s[i]], x[r[i]], e[i]]).unsqueeze(0))[0] for i in range(7)]
-        logit = torch.stack([layer.weight_fn(v.unsqueeze(0))[0, 0] for v in lat])
-        for node in range(3):
-            into = [i for i in range(7) if int(r[i]) == node]
-            alpha = torch.softmax(logit[into], 0)
-            torch.testing.assert_close(w[into], alpha)
-            agg = sum(a * lat[i] for a, i in zip(alpha, into))
-            h = torch.cat([x[node], agg])
-            torch.testing.assert_close(out[node], x[node] + layer.node_fn(h.unsqueeze(0))[0])
-            torch.testing.assert_close(scores[node], layer.score_fn(h.unsqueeze(0))[0])
-    assert not torch.isclose(w[0], w[1])  # 0->1 and 1->0 weigh differently: direction-aware
+    torch.testing.assert_close(expand(fine, s, r, w), want)
 
 
 # --- the relaxed selection ----------------------------------------------------------------------
@@ -161,7 +139,7 @@ def test_shape_and_gradients_reach_every_parameter_including_the_selection_score
     out.square().mean().backward()
     # The edge weights are a softmax over each receiver's edges, unchanged by a constant shift of the logits, so
     # the bias of weight_fn's last layer has gradient exactly zero (0 or rounding noise): check that, not > 0.
-    shift_invariant = {id(m.weight_fn[-1].bias) for m in proc.modules() if hasattr(m, "weight_fn")}
+    shift_invariant = {id(m.weight[-1].bias) for m in proc.modules() if isinstance(m, WeightedGmp)}
     assert shift_invariant
     for name, p in proc.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
@@ -169,8 +147,8 @@ def test_shape_and_gradients_reach_every_parameter_including_the_selection_score
             assert p.grad.abs().max() < 1e-6, name
         else:
             assert p.grad.abs().sum() > 0, name
-    assert [n for n, _ in proc.named_parameters() if "score_fn" in n]  # learned levels 1 and 2 score their nodes
-    assert all(layer.score_fn is None for layer in proc.down[:1])
+    assert [n for n, _ in proc.named_parameters() if ".score." in n]  # learned levels 1 and 2 score their nodes
+    assert all(layer.score is None for layer in [*proc.down[:1], *proc.bottom, *proc.up])
 
 
 def test_the_hierarchy_is_selected_per_input():
@@ -190,7 +168,7 @@ def test_the_hierarchy_is_selected_per_input():
     one = proc.last_kept[2].clone()
     proc(nodes, inputs)
     assert not torch.equal(one, proc.last_kept[2]) and int(proc.calls) == 2  # training: a fresh Gumbel sample per call
-    assert proc.temperature == pytest.approx(5.0 * 0.999**2)
+    assert proc.temperature == pytest.approx(5.0 * 0.999**3)  # the third call's: decayed once per call, before use
 
 
 def test_a_keep_ratio_fixes_the_level_sizes_but_not_the_nodes():
@@ -208,9 +186,10 @@ def test_a_keep_ratio_fixes_the_level_sizes_but_not_the_nodes():
 
 
 def test_permuting_nodes_permutes_the_output():
+    """With learned levels only: EvoMesh's bi-stride seeds break ties in summed hop distance by node index."""
     s, r, pos = jittered_mesh(7, 5, seed=1)
     nodes, inputs = make_inputs(s, r, pos, LATENT, seed=1, key="a")
-    proc = processor(levels=3, fixed=1).eval()
+    proc = processor(levels=3, fixed=0).eval()
     perm = torch.randperm(len(pos), generator=torch.Generator().manual_seed(0))
     out = proc(nodes, inputs)
     torch.testing.assert_close(proc(*permute_inputs(nodes, inputs, perm, key="p")), out[perm], rtol=1e-4, atol=1e-4)
@@ -233,8 +212,25 @@ def test_contact_block_only_with_obstacles():
     proc.eval()
     out = proc(nodes, inputs)
     w = inputs.edge_sets["world"]
-    inputs.edge_sets["world"] = w._replace(features=w.features + 1.0)
+    inputs.edge_sets["world"] = w._replace(features=w.features + 1.0)  # encoded features are not read: fibres are
+    torch.testing.assert_close(proc(nodes, inputs), out, rtol=0, atol=0)
+    inputs.edge_sets["world"] = w._replace(senders=w.senders[:0], receivers=w.receivers[:0], features=w.features[:0])
     assert (proc(nodes, inputs) - out).abs().max() > 1e-3
+
+
+def test_structure_at_ci_widths_is_pinned():
+    """Parameter counts (by formula) and fixed-seed float64 outputs (committed): the ci preset's shape (one learned
+    level at the mesh, keep ratio 0.5) and the small preset's (2 bi-stride and 2 learned levels, the authors' rule)."""
+    def block(scores: bool) -> int:  # WeightedGmp: edge MLP on (fibre 7 + 2 latents), weight MLP, node MLP, [score MLP]
+        n = mlp_parameters(7 + 128, 64, 2, 64, False) + mlp_parameters(64, 64, 2, 1, False) + mlp_parameters(128, 64, 2, 64, False)
+        return n + (mlp_parameters(128, 64, 2, 2, False) if scores else 0)
+
+    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, keep_ratio=0.5), SimpleNamespace(scene=PINNED)))
+    assert count == shared_parameters(64, 2, encoded_edges=False) + block(True) + 2 * block(False) == 156296
+    assert_close(value, 12.5817759494111)
+    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=4, fixed_levels=2), SimpleNamespace(scene=PINNED)))
+    assert count == shared_parameters(64, 2, encoded_edges=False) + 2 * block(True) + 7 * block(False) == 420752
+    assert_close(value, -28.750969251279837)
 
 
 @pytest.mark.parametrize("field,value", [("levels", -1), ("fixed_levels", 4), ("bottom_blocks", 0), ("tau_decay", 1.5), ("tau_min", 0.0), ("keep_ratio", 0.0)])

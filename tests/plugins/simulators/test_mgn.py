@@ -24,6 +24,7 @@ from clods_bench.plugins.simulators.learned.mgn import build_mgn
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
 from clods_bench.threads import torch_threads
+from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=True)
 SMALL = dict(latent_size=16, hidden_layers=1, message_passing_steps=2, warmup_steps=5, checkpoint_every=10**6, num_threads=1)
@@ -390,3 +391,14 @@ def test_training_and_rollout_on_a_gpu_match_the_cpu(windless: Trajectory, tmp_p
     again = build("cpu")  # the GPU's checkpoint, finished: loads on the CPU and rolls out the same
     again.fit([windless], FitContext(work_dir=tmp_path / "gpu", seed=1, progress=False))
     np.testing.assert_allclose(again.rollout(inp)[:12], gpu.rollout(inp)[:12], atol=1e-5)
+
+
+# --- structure pinned ----------------------------------------------------------------------------
+
+
+def test_structure_at_ci_widths_is_pinned() -> None:
+    """Parameter count (by formula) and one fixed-seed float64 output (committed) at the ci preset's MGN widths."""
+    count, value = fixed_evaluation(build_mgn(MgnConfig(**CI_WIDTHS, message_passing_steps=4), SimpleNamespace(scene=PINNED)))
+    block = mlp_parameters(3 * 64, 64, 2, 64, True) + mlp_parameters(2 * 64, 64, 2, 64, True)  # edge and node MLPs
+    assert count == shared_parameters(64, 2, encoded_edges=True) + 4 * block == 176771
+    assert_close(value, 9.42477075348118)

@@ -16,8 +16,15 @@ from torch import nn
 from clods_bench.plugins.simulators.learned.graph import EdgeSet
 
 
-def make_mlp(in_size: int, latent: int, hidden_layers: int, out_size: int, layer_norm: bool = True) -> nn.Sequential:
-    """MLP [in -> latent x hidden_layers -> out] with ReLU between layers, optional final LayerNorm."""
+def make_mlp(
+    in_size: int, latent: int, hidden_layers: int, out_size: int, layer_norm: bool = True, torch_style: bool = False
+) -> nn.Sequential:
+    """MLP [in -> latent x hidden_layers -> out] with ReLU between layers, optional final LayerNorm.
+
+    Default (MeshGraphNets, Sonnet): a LayerNorm with learned scale and offset, truncated-normal weights
+    (std 1/sqrt(fan_in)) and zero biases. `torch_style` (BSMS-GNN and EvoMesh's `MLP`): a LayerNorm without
+    learned parameters and torch's default Linear initialisation.
+    """
     layers: list[nn.Module] = []
     size = in_size
     for _ in range(hidden_layers):
@@ -25,12 +32,13 @@ def make_mlp(in_size: int, latent: int, hidden_layers: int, out_size: int, layer
         size = latent
     layers.append(nn.Linear(size, out_size))
     if layer_norm:
-        layers.append(nn.LayerNorm(out_size))
-    for m in layers:  # Sonnet's default init: truncated normal, std 1/sqrt(fan_in), zero bias
-        if isinstance(m, nn.Linear):
-            std = 1.0 / math.sqrt(m.in_features)
-            nn.init.trunc_normal_(m.weight, std=std, a=-2 * std, b=2 * std)
-            nn.init.zeros_(m.bias)
+        layers.append(nn.LayerNorm(out_size, elementwise_affine=not torch_style))
+    if not torch_style:
+        for m in layers:  # Sonnet's default init: truncated normal, std 1/sqrt(fan_in), zero bias
+            if isinstance(m, nn.Linear):
+                std = 1.0 / math.sqrt(m.in_features)
+                nn.init.trunc_normal_(m.weight, std=std, a=-2 * std, b=2 * std)
+                nn.init.zeros_(m.bias)
     return nn.Sequential(*layers)
 
 

@@ -1,11 +1,15 @@
-"""BSMS-style processor: a message-passing U-Net over a bi-stride hierarchy (Cao et al., ICML 2023).
+"""BSMS-GNN's processor: its message-passing U-Net over bi-stride levels (Cao et al., ICML 2023), in PyTorch.
 
-As in BSMS-GNN's `BSGMP`: at each level going down, residual message passing then pooling;
-message passing at the bottom; going up, unpooling, message passing and adding the skip from
-the same level. Level 0 uses the encoded edge sets it is given (mesh, and world with
-obstacles); a coarse level builds its edge features from relative world/mesh positions and
-their norms (BSMS's "fiber"), in units of the component's mean rest edge length, encoded by
-one MLP per level. Blocks are MeshGraphNets GraphNetBlocks (edge and node residuals).
+As in Eydcao/BSMS-GNN's `BSGMP` (src/ops/BSMS.py): going down, at each level a GMP on that level's edges and
+positions, the latents and the positions pooled with BSMS's edge weights, then the kept nodes selected; a GMP at
+the bottom; going up, unpooling (the coarse latents at the kept nodes over zeros, sent back along the pooling edges
+with the same weights), a GMP on that level's edges and positions, and the skip from the way down added. The
+same-weights study `examples/studies/bsms_same_weights.py` runs the authors' modules beside this one.
+
+The position a GMP's fibre is built from is the authors' `pos` input: here the rest (mesh) position and the world
+position of a node side by side, (V, 2 + 3), so the fibre is their difference across an edge and its norm (the
+authors' code passes the mesh position of its Eulerian domains). With obstacles, the level-0 GMPs also take
+contact edges (BSMS-GNN 2023's contact block); coarse levels have mesh edges only.
 """
 
 from __future__ import annotations
@@ -16,21 +20,27 @@ import torch
 from torch import nn
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.simulators.learned.blocks import GraphNetBlock, make_mlp
-from clods_bench.plugins.simulators.learned.graph import EdgeSet
-from clods_bench.plugins.simulators.learned.hierarchy import (
-    REL_FEATURE_SIZE,
-    Hierarchy,
-    HierarchyCache,
-    relative_features,
-)
+from clods_bench.plugins.simulators.learned.bistride import BistrideCache, BistrideLevels
+from clods_bench.plugins.simulators.learned.gmp import ContactGmp, Gmp, fibre
 from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
 from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
 
+MESH_DIM, WORLD_DIM = 2, 3
+FIBRE_GROUPS = ((0, MESH_DIM + WORLD_DIM),)  # one norm over the whole (mesh, world) difference
+FIBRE_SIZE = MESH_DIM + WORLD_DIM + len(FIBRE_GROUPS)
+CONTACT_FIBRE_SIZE = WORLD_DIM + 1
+
+
+def node_positions(inputs: ProcessorInputs) -> torch.Tensor:
+    """(V, 5): rest (mesh) position then world position of every node, in the world positions' dtype."""
+    return torch.cat([inputs.mesh_pos.to(inputs.pos.dtype), inputs.pos], dim=1)
+
 
 class BsmsProcessor(nn.Module):
-    """Node latents (V,L) -> (V,L) through the bi-stride message-passing U-Net."""
+    """Node latents (V,L) -> (V,L) through BSMS-GNN's bi-stride message-passing U-Net."""
+
+    encoded_edge_sets: tuple[str, ...] = ()  # messages are rebuilt from positions: no edge set is encoded
 
     def __init__(self, latent: int, hidden_layers: int, edge_sets: Sequence[str], config: BsmsConfig | None = None) -> None:
         super().__init__()
@@ -40,53 +50,46 @@ class BsmsProcessor(nn.Module):
         names = list(edge_sets)
         if "mesh" not in names:
             raise ClodsError(f"edge sets {names} lack 'mesh'", where="BsmsProcessor", hint="the hierarchy is built from mesh edges")
-        self.edge_names = names
+        self.contact = "world" in names
 
-        def blocks(level: int, n: int) -> nn.ModuleList:
-            sets = names if level == 0 else ["mesh"]  # world (contact) edges exist at the mesh level only
-            return nn.ModuleList(GraphNetBlock(latent, hidden_layers, sets) for _ in range(n))
+        def gmp(level: int) -> nn.Module:
+            if level == 0 and self.contact:
+                return ContactGmp(latent, hidden_layers, FIBRE_SIZE, CONTACT_FIBRE_SIZE)
+            return Gmp(latent, hidden_layers, FIBRE_SIZE)
 
-        self.down = nn.ModuleList(blocks(level, cfg.blocks_per_level) for level in range(cfg.levels))
-        self.bottom = blocks(cfg.levels, cfg.bottom_blocks)
-        self.up = nn.ModuleList(blocks(level, cfg.blocks_per_level) for level in range(cfg.levels))
-        self.edge_encoders = nn.ModuleList(make_mlp(REL_FEATURE_SIZE, latent, hidden_layers, latent) for _ in range(cfg.levels))
-        self.hierarchies = HierarchyCache(cfg.levels)
+        self.down = nn.ModuleList(gmp(level) for level in range(cfg.levels))
+        self.bottom = gmp(cfg.levels)
+        self.up = nn.ModuleList(gmp(level) for level in range(cfg.levels))  # indexed by level, like `down`
+        self.levels = BistrideCache(cfg.levels, "nearest_centroid")
 
-    def _coarse_edges(self, level: int, inputs: ProcessorInputs, h: Hierarchy) -> dict[str, EdgeSet]:
-        """Encoded mesh edge set of coarse `level` (>= 1) at the current positions."""
-        idx = h.fine_index[level]
+    def _gmp(self, block: nn.Module, x: torch.Tensor, pos: torch.Tensor, level: int, h: BistrideLevels, inputs: ProcessorInputs) -> torch.Tensor:
         s, r = h.senders[level], h.receivers[level]
-        feats = relative_features(inputs.pos.index_select(0, idx), inputs.mesh_pos.index_select(0, idx), s, r, h.unit[level])
-        return {"mesh": EdgeSet(self.edge_encoders[level - 1](feats), s, r)}
+        fib = fibre(pos, s, r, FIBRE_GROUPS)
+        if isinstance(block, ContactGmp):
+            w = inputs.edge_sets["world"]
+            cfib = fibre(inputs.pos, w.senders, w.receivers, ((0, WORLD_DIM),))
+            return block(x, fib, s, r, cfib, w.senders, w.receivers)
+        return block(x, fib, s, r)
 
     def forward(self, nodes: torch.Tensor, inputs: ProcessorInputs) -> torch.Tensor:
         """Updated node latents (V,L)."""
         mesh = inputs.edge_sets["mesh"]
-        h = self.hierarchies.get(inputs.topology_key, mesh.senders, mesh.receivers, inputs.mesh_pos)
-        x = nodes
-        sets: dict[str, EdgeSet] = {n: inputs.edge_sets[n] for n in self.edge_names}
+        h = self.levels.get(inputs.topology_key, mesh.senders, mesh.receivers, inputs.mesh_pos)
+        x, pos = nodes, node_positions(inputs)
         skips: list[torch.Tensor] = []
-        level_sets: list[dict[str, EdgeSet]] = []
+        positions: list[torch.Tensor] = []
         for level in range(self.config.levels):
-            if level > 0:
-                sets = self._coarse_edges(level, inputs, h)
-            for block in self.down[level]:
-                x, sets = block(x, sets)
+            x = self._gmp(self.down[level], x, pos, level, h, inputs)
             skips.append(x)
-            level_sets.append(sets)
-            x = h.pool[level].apply(x)
-        sets = self._coarse_edges(self.config.levels, inputs, h) if self.config.levels > 0 else sets
-        for block in self.bottom:
-            x, sets = block(x, sets)
+            positions.append(pos)
+            x, pos = h.pool[level].apply(x), h.pool[level].apply(pos)
+        x = self._gmp(self.bottom, x, pos, self.config.levels, h, inputs)
         for level in reversed(range(self.config.levels)):
             x = h.unpool[level].apply(x)
-            sets = level_sets[level]
-            for block in self.up[level]:
-                x, sets = block(x, sets)
-            x = x + skips[level]
+            x = self._gmp(self.up[level], x, positions[level], level, h, inputs) + skips[level]
         return x
 
 
 def build_bsms(config: BsmsConfig, ctx: object) -> LearnedSimulator:
-    """The `bsms` plugin object for a BuildContext's scene (world edges only if it has obstacles)."""
+    """The `bsms` plugin object for a BuildContext's scene (contact edges at the mesh level only with obstacles)."""
     return LearnedSimulator("bsms", config, getattr(ctx, "scene"), lambda latent, hidden, names: BsmsProcessor(latent, hidden, names, config))

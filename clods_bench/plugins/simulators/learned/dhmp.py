@@ -1,18 +1,21 @@
-"""DHMP-style processor: a U-Net of anisotropic layers over a hierarchy selected per input (Deng et al.).
+"""DHMP's processor: EvoMesh's U-Net of anisotropic blocks over a hierarchy selected per input (Deng et al.).
 
-Following the authors' public code (hbell99/EvoMesh `EvoMesh.forward`, see `dhmp_ops` for the blocks): at each
-level going down, an anisotropic layer, REDUCE with its edge weights, then selection of the next level's nodes
-(bi-stride on the first `fixed_levels`, learned Gumbel-softmax scores below) and the coarse graph A u A^2 among
-them; anisotropic layers at the bottom; going up, EXPAND with the down pass's weights, an anisotropic layer and
-the skip from the same level. Every level's edges get self loops. Level 0 uses the encoder's mesh edge latents;
-a coarse level encodes relative world/mesh positions over the component's mean rest edge length (as BSMS does)
-with one MLP per level; a self loop's latent is a learned vector per level.
+As in the authors' public code (hbell99/EvoMesh `EvoMesh.forward`, with its cloth settings: `lagrangian`,
+`enhance`, no position pooling): going down, at each level an anisotropic block on the level's edges plus self
+loops (run twice at the mesh level), REDUCE with its edge weights, then the next level's nodes (EvoMesh's
+bi-stride levels for the first `fixed_levels`, learned Gumbel-softmax selection below, whose coarse graph is
+A u A^2 among the kept nodes) with their positions; anisotropic blocks at the bottom, without self loops (the first
+run twice); going up, EXPAND with the down pass's weights, an anisotropic block (twice at the mesh level) and the
+skip from the same level. Fibres are built from a node's rest (mesh) and world positions: their differences across
+an edge and one norm each. `examples/studies/dhmp_same_weights.py` runs the authors' modules beside this one.
 
 Where this differs from that code, on purpose: in evaluation the selection is the most probable one (no Gumbel
 noise), so a trained model rolls out deterministically; a connected component left without a kept node keeps its
-most probable node; the training noise comes from a generator seeded by (a seed drawn at construction, the
-call count), both buffers in the state dict, so a resumed run repeats an uninterrupted one; contact ('world')
-edges, with obstacles, get one MeshGraphNets block at the mesh level before the U-Net.
+most probable node; the selection is per sample of a batch (the code averages the scores over a batch of one
+mesh); the temperature decays per training call only; the training noise comes from a generator seeded by (a seed
+drawn at construction, the call count), both buffers in the state dict, so a resumed run repeats an uninterrupted
+one; the code's zero third rest coordinate (its cloth data pads the 2-D mesh positions) is left out; with
+obstacles, contact edges get one BSMS contact block at the mesh level before the U-Net.
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ from scipy.sparse.csgraph import connected_components
 from torch import nn
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.simulators.learned.blocks import GraphNetBlock, make_mlp
+from clods_bench.plugins.simulators.learned.bistride import BistrideCache
+from clods_bench.plugins.simulators.learned.bsms import CONTACT_FIBRE_SIZE, MESH_DIM, WORLD_DIM, node_positions
 from clods_bench.plugins.simulators.learned.dhmp_ops import (
-    AnisotropicLayer,
     expand,
     gumbel_noise,
     reduce,
@@ -38,15 +41,20 @@ from clods_bench.plugins.simulators.learned.dhmp_ops import (
     two_hop_edges_among,
     with_self_loops,
 )
-from clods_bench.plugins.simulators.learned.graph import EdgeSet
-from clods_bench.plugins.simulators.learned.hierarchy import REL_FEATURE_SIZE, Hierarchy, HierarchyCache, _adjacency, relative_features
+from clods_bench.plugins.simulators.learned.gmp import ContactGmp, WeightedGmp, fibre
+from clods_bench.plugins.simulators.learned.hierarchy import _adjacency
 from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
 from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 from clods_bench.plugins.simulators.learned.unet_configs import DhmpConfig
 
+FIBRE_GROUPS = ((0, MESH_DIM), (MESH_DIM, MESH_DIM + WORLD_DIM))  # a norm for the rest and one for the world difference
+FIBRE_SIZE = MESH_DIM + WORLD_DIM + len(FIBRE_GROUPS)
+
 
 class DhmpProcessor(nn.Module):
-    """Node latents (V,L) -> (V,L) through the anisotropic U-Net over a per-input hierarchy."""
+    """Node latents (V,L) -> (V,L) through EvoMesh's anisotropic U-Net over a per-input hierarchy."""
+
+    encoded_edge_sets: tuple[str, ...] = ()  # messages are rebuilt from positions: no edge set is encoded
 
     def __init__(self, latent: int, hidden_layers: int, edge_sets: Sequence[str], config: DhmpConfig | None = None) -> None:
         super().__init__()
@@ -56,16 +64,17 @@ class DhmpProcessor(nn.Module):
         names = list(edge_sets)
         if "mesh" not in names:
             raise ClodsError(f"edge sets {names} lack 'mesh'", where="DhmpProcessor", hint="the hierarchy is built from mesh edges")
-        self.contact = GraphNetBlock(latent, hidden_layers, names) if len(names) > 1 else None
-        self.contact_names = names
-        self.down = nn.ModuleList(AnisotropicLayer(latent, hidden_layers, scores=level >= cfg.fixed_levels) for level in range(cfg.levels))
-        self.bottom = nn.ModuleList(AnisotropicLayer(latent, hidden_layers) for _ in range(cfg.bottom_blocks))
-        self.up = nn.ModuleList(AnisotropicLayer(latent, hidden_layers) for _ in range(cfg.levels))
-        self.edge_encoders = nn.ModuleList(make_mlp(REL_FEATURE_SIZE, latent, hidden_layers, latent) for _ in range(cfg.levels))
-        self.self_loops = nn.Parameter(torch.randn(cfg.levels + 1, latent))
+        self.contact = ContactGmp(latent, hidden_layers, FIBRE_SIZE, CONTACT_FIBRE_SIZE) if "world" in names else None
+
+        def block(scores: bool = False) -> WeightedGmp:
+            return WeightedGmp(latent, hidden_layers, FIBRE_SIZE, scores)
+
+        self.down = nn.ModuleList(block(scores=level >= cfg.fixed_levels) for level in range(cfg.levels))
+        self.bottom = nn.ModuleList(block() for _ in range(cfg.bottom_blocks))
+        self.up = nn.ModuleList(block() for _ in range(cfg.levels))  # indexed by level, like `down`
         self.register_buffer("calls", torch.zeros((), dtype=torch.int64))  # training calls so far: temperature and noise
         self.register_buffer("noise_seed", torch.randint(0, 2**31 - 1, ()))  # from the (seeded) global RNG at build time
-        self.fixed = HierarchyCache(cfg.fixed_levels)
+        self.fixed = BistrideCache(cfg.fixed_levels, "min_average")
         self._components: OrderedDict[str, torch.Tensor] = OrderedDict()
         self.last_kept: list[torch.Tensor] = []  # level-0 indices of each level's nodes in the latest call (inspection)
 
@@ -73,7 +82,7 @@ class DhmpProcessor(nn.Module):
     def temperature(self) -> float:
         """The Gumbel-softmax temperature of the next training call."""
         cfg = self.config
-        return max(cfg.tau_start * cfg.tau_decay ** int(self.calls), cfg.tau_min)
+        return max(cfg.tau_start * cfg.tau_decay ** (int(self.calls) + 1), cfg.tau_min)
 
     def _component(self, key: str, senders: torch.Tensor, receivers: torch.Tensor, n: int) -> torch.Tensor:
         """Connected-component label (V,) of every mesh node, cached per topology."""
@@ -87,62 +96,75 @@ class DhmpProcessor(nn.Module):
         self._components.move_to_end(key)
         return self._components[key]
 
+    def _select(self, scores: torch.Tensor, component: torch.Tensor, tau: float, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(kept indices (K,), straight-through gate (K,)) from a level's [keep, drop] scores."""
+        noise = gumbel_noise(tuple(scores.shape), generator, scores.device, scores.dtype) if generator is not None else None
+        keep, soft, margin = relaxed_keep(scores, tau, noise)
+        if self.config.keep_ratio is not None:
+            keep = top_fraction(margin, component, self.config.keep_ratio)
+        return select_nodes(keep, soft, component)
+
     def forward(self, nodes: torch.Tensor, inputs: ProcessorInputs) -> torch.Tensor:
         """Updated node latents (V,L)."""
         cfg = self.config
         mesh = inputs.edge_sets["mesh"]
         n0 = nodes.shape[0]
-        h: Hierarchy = self.fixed.get(inputs.topology_key, mesh.senders, mesh.receivers, inputs.mesh_pos)
+        h = self.fixed.get(inputs.topology_key, mesh.senders, mesh.receivers, inputs.mesh_pos)
         component = self._component(inputs.topology_key, mesh.senders, mesh.receivers, n0)
-        x = nodes
+        x, pos = nodes, node_positions(inputs)
         if self.contact is not None:
-            x, sets = self.contact(x, {name: inputs.edge_sets[name] for name in self.contact_names})
-            mesh = sets["mesh"]
+            w = inputs.edge_sets["world"]
+            cfib = fibre(inputs.pos, w.senders, w.receivers, ((0, WORLD_DIM),))
+            x = self.contact(x, fibre(pos, mesh.senders, mesh.receivers, FIBRE_GROUPS), mesh.senders, mesh.receivers, cfib, w.senders, w.receivers)
         tau, generator = self.temperature, None
         if self.training:
             generator = torch.Generator().manual_seed((int(self.noise_seed) << 20) + int(self.calls))
             self.calls += 1
         fine = torch.arange(n0, device=nodes.device)
         self.last_kept = [fine]
-        level_edges: list[EdgeSet] = []
-        weights, skips, kept_at = [], [], []
-        edges = with_self_loops(mesh, self.self_loops[0], n0)
+        s, r = mesh.senders, mesh.receivers
+        skips, positions, loops, weights, kept_at = [], [], [], [], []
         for level in range(cfg.levels):
-            x, w, scores = self.down[level](x, edges)
-            skips.append(x)
-            level_edges.append(edges)
-            weights.append(w)
-            x = reduce(x, edges, w)
             n = x.shape[0]
+            sl, rl = with_self_loops(s, r, n)
+            fib = fibre(pos, sl, rl, FIBRE_GROUPS)
+            for _ in range(2 if level == 0 else 1):  # the code runs the mesh level's block twice on cloth
+                x, w, scores = self.down[level](x, fib, sl, rl)
+            skips.append(x)
+            positions.append(pos)
+            loops.append((sl, rl))
+            weights.append(w)
+            x = reduce(x, sl, rl, w)
             if scores is None:  # a fixed (bi-stride) level
-                kept, gate = h.kept[level], None
+                kept = h.kept[level]
+                x, pos = x.index_select(0, kept), pos.index_select(0, kept)
                 s, r = h.senders[level + 1], h.receivers[level + 1]
             else:
-                noise = gumbel_noise(tuple(scores.shape), generator, scores.device) if generator is not None else None
-                keep, soft, margin = relaxed_keep(scores, tau, noise)
-                if cfg.keep_ratio is not None:
-                    keep = top_fraction(margin, component, cfg.keep_ratio)
-                kept, gate = select_nodes(keep, soft, component)
-                s, r = two_hop_edges_among(edges.senders, edges.receivers, n, kept)  # its self loops are the I
-            x = x.index_select(0, kept)
-            if gate is not None:
-                x = x * gate.unsqueeze(1)
+                if level == 0 and generator is not None:  # the code samples in both runs of the block and keeps the second
+                    gumbel_noise(tuple(scores.shape), generator, scores.device, scores.dtype)
+                kept, gate = self._select(scores, component, tau, generator)
+                x = x.index_select(0, kept) * gate.unsqueeze(1)
+                pos = pos.index_select(0, kept) * gate.detach().unsqueeze(1)  # the code gates positions too (1 up to rounding)
+                s, r = two_hop_edges_among(s, r, n, kept)
             kept_at.append(kept)
             component, fine = component.index_select(0, kept), fine.index_select(0, kept)
             self.last_kept.append(fine)
-            feats = relative_features(
-                inputs.pos.index_select(0, fine), inputs.mesh_pos.index_select(0, fine), s, r, h.unit[0].index_select(0, fine)
-            )  # fmt: skip
-            edges = with_self_loops(EdgeSet(self.edge_encoders[level](feats), s, r), self.self_loops[level + 1], len(kept))
-        for layer in self.bottom:
-            x = layer(x, edges)[0]
+        if cfg.bottom_blocks:
+            fib = fibre(pos, s, r, FIBRE_GROUPS)
+            for i, block in enumerate(self.bottom):
+                for _ in range(2 if i == 0 else 1):  # the first bottom block runs twice, as the code does on cloth
+                    x = block(x, fib, s, r)[0]
         for level in reversed(range(cfg.levels)):
+            sl, rl = loops[level]
             coarse = skips[level].new_zeros(skips[level].shape).index_copy(0, kept_at[level], x)
-            x = expand(coarse, level_edges[level], weights[level])
-            x = self.up[level](x, level_edges[level])[0] + skips[level]
+            x = expand(coarse, sl, rl, weights[level])
+            fib = fibre(positions[level], sl, rl, FIBRE_GROUPS)
+            for _ in range(2 if level == 0 else 1):
+                x = self.up[level](x, fib, sl, rl)[0]
+            x = x + skips[level]
         return x
 
 
 def build_dhmp(config: DhmpConfig, ctx: object) -> LearnedSimulator:
-    """The `dhmp` plugin object for a BuildContext's scene (world edges only if it has obstacles)."""
+    """The `dhmp` plugin object for a BuildContext's scene (a contact block first with obstacles)."""
     return LearnedSimulator("dhmp", config, getattr(ctx, "scene"), lambda latent, hidden, names: DhmpProcessor(latent, hidden, names, config))

@@ -1,67 +1,42 @@
-"""DHMP's building blocks: anisotropic message passing, differentiable node selection, REDUCE/EXPAND between levels.
+"""DHMP's selection and level transitions: Gumbel-softmax node selection, two-hop coarse edges, REDUCE/EXPAND.
 
-Facts from the authors' public code (hbell99/EvoMesh `core_model.py`, the published version of DHMP):
-- an anisotropic layer computes edge latents e = MLP([edge, h_s, h_r]) over the level's edges plus self
-  loops, an edge weight w = softmax over each receiver's incoming edges of MLP(e) (directional: w_sr != w_rs),
-  aggregates sum_s w_sr e_sr per receiver, updates h_r + MLP([h_r, aggregate]) and, on a learned level,
-  scores [keep, drop] per node from [h_r, aggregate];
-- selection is a Gumbel-softmax over the two scores with a straight-through hard sample: a node is kept when
-  its noisy 'keep' score wins (or, with a keep ratio, an option of this implementation, when its noisy margin
-  is among its component's top fraction), and the kept latents are multiplied by the hard-minus-detached-soft gate (1 in
-  the forward pass, the soft sample's gradient in the backward pass);
+Facts from the authors' public code (hbell99/EvoMesh `src/core_model.py`, the published version of DHMP; its
+anisotropic block is `gmp.WeightedGmp`):
+- selection is a Gumbel-softmax over a node's [keep, drop] scores with a straight-through hard sample: a node is
+  kept when its noisy 'keep' score wins (or, with a keep ratio, an option of this implementation, when its noisy
+  margin is among its component's top fraction), and the latents are multiplied by the hard-minus-detached-soft
+  gate (1 in the forward pass, the soft sample's gradient in the backward pass) before the kept ones are taken;
 - the coarse graph is the fine graph's edges and two-hop pairs (A u A^2) among the kept nodes;
-- REDUCE (down) replaces each node by sum_s w_sr h_s with the layer's own weights before selection; EXPAND (up)
-  writes the coarse latents over zeros at the kept nodes and sends them back along the same edges, transposed:
-  h_s = sum_r w_sr h_r.
+- every level's anisotropic blocks see the level's edges plus one self loop per node (PyG's
+  `add_remaining_self_loops`), except the bottom blocks;
+- REDUCE (down) replaces each node by sum_s w_sr h_s with the level's learned weights before selection; EXPAND
+  (up) writes the coarse latents over zeros at the kept nodes and sends them back along the same edges,
+  transposed: h_s = sum_r w_sr h_r.
 """
 
 from __future__ import annotations
 
 import torch
-from torch import nn
 
-from clods_bench.plugins.simulators.learned.blocks import EdgeFunction, aggregate, make_mlp
-from clods_bench.plugins.simulators.learned.graph import EdgeSet
-from clods_bench.plugins.simulators.learned.hcmt import scatter_softmax
+from clods_bench.plugins.simulators.learned.blocks import aggregate
 
 KEEP, DROP = 0, 1  # columns of the selection scores
 
 
-class AnisotropicLayer(nn.Module):
-    """One anisotropic message-passing layer; on a learned level it also scores each node for selection."""
-
-    def __init__(self, latent: int, hidden_layers: int, scores: bool = False) -> None:
-        super().__init__()
-        self.edge_fn = EdgeFunction(latent, latent, hidden_layers)
-        self.weight_fn = make_mlp(latent, latent, hidden_layers, 1, layer_norm=False)
-        self.node_fn = make_mlp(2 * latent, latent, hidden_layers, latent)
-        self.score_fn = make_mlp(2 * latent, latent, hidden_layers, 2, layer_norm=False) if scores else None
-
-    def forward(self, x: torch.Tensor, edges: EdgeSet) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """(x + node update (V,L), edge weights (E,) summing to 1 per receiver, selection scores (V,2) or None)."""
-        n = x.shape[0]
-        e = self.edge_fn(x, edges)
-        w = scatter_softmax(self.weight_fn(e), edges.receivers, n)  # (E,1)
-        h = torch.cat([x, aggregate(e * w, edges.receivers, n)], dim=1)
-        scores = self.score_fn(h) if self.score_fn is not None else None
-        return x + self.node_fn(h), w.squeeze(1), scores
+def with_self_loops(senders: torch.Tensor, receivers: torch.Tensor, num_nodes: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The edges followed by one self loop per node (the graphs here have none of their own)."""
+    loop = torch.arange(num_nodes, device=senders.device)
+    return torch.cat([senders, loop]), torch.cat([receivers, loop])
 
 
-def reduce(x: torch.Tensor, edges: EdgeSet, weight: torch.Tensor) -> torch.Tensor:
+def reduce(x: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """REDUCE: out[r] = sum over edges s->r of weight * x[s] (V,L)."""
-    return aggregate(x.index_select(0, edges.senders) * weight.unsqueeze(1), edges.receivers, x.shape[0])
+    return aggregate(x.index_select(0, senders) * weight.unsqueeze(1), receivers, x.shape[0])
 
 
-def expand(x: torch.Tensor, edges: EdgeSet, weight: torch.Tensor) -> torch.Tensor:
+def expand(x: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """EXPAND, REDUCE transposed: out[s] = sum over edges s->r of weight * x[r] (V,L)."""
-    return aggregate(x.index_select(0, edges.receivers) * weight.unsqueeze(1), edges.senders, x.shape[0])
-
-
-def with_self_loops(edges: EdgeSet, self_latent: torch.Tensor, num_nodes: int) -> EdgeSet:
-    """`edges` plus one self loop per node whose latent is `self_latent` (L,)."""
-    loop = torch.arange(num_nodes, device=edges.senders.device)
-    feats = torch.cat([edges.features, self_latent.unsqueeze(0).expand(num_nodes, -1)])
-    return EdgeSet(feats, torch.cat([edges.senders, loop]), torch.cat([edges.receivers, loop]))
+    return aggregate(x.index_select(0, receivers) * weight.unsqueeze(1), senders, x.shape[0])
 
 
 @torch.no_grad()
@@ -91,9 +66,10 @@ def two_hop_edges_among(senders: torch.Tensor, receivers: torch.Tensor, num_node
     return code // k, code % k
 
 
-def gumbel_noise(shape: tuple[int, ...], generator: torch.Generator, device: torch.device) -> torch.Tensor:
-    """Standard Gumbel samples -log(-log U) from `generator` (U kept off 0 and 1)."""
-    u = torch.rand(shape, generator=generator).clamp_(1e-10, 1.0 - 1e-7)
+def gumbel_noise(shape: tuple[int, ...], generator: torch.Generator, device: torch.device, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Standard Gumbel samples -log(-log U), U drawn from `generator` in `dtype` (as `torch.rand_like` would) and
+    kept off 0 and 1, where the code's would give an infinite score."""
+    u = torch.rand(shape, generator=generator, dtype=dtype).clamp_(1e-10, 1.0 - 1e-7)
     return (-torch.log(-torch.log(u))).to(device)
 
 

@@ -1,7 +1,8 @@
 """Encode-process-decode with a pluggable processor, online normalisers and second-order integration.
 
 Shared by every learned simulator (DeepMind `cloth_model.py` + `core_model.py`): raw node and
-edge features are normalised online, encoded by MLPs to `latent_size`, updated by the
+edge features are normalised online, encoded by MLPs to `latent_size` (the edge sets a processor names in
+`encoded_edge_sets`, all when it names none; the others reach it normalised, not encoded), updated by the
 simulator's processor, and decoded (no LayerNorm) to a normalised acceleration a; positions
 advance as x_{t+1} = 2 x_t - x_{t-1} + a on NORMAL nodes, kinematic nodes are prescribed.
 """
@@ -47,7 +48,10 @@ class LearnedModel(nn.Module):
         self.edge_normalizers = nn.ModuleDict({n: Normalizer(w, max_accumulations) for n, w in widths.items()})
         self.output_normalizer = Normalizer(OUTPUT_SIZE, max_accumulations)
         self.node_encoder = make_mlp(NODE_FEATURE_SIZE, latent, hidden_layers, latent)
-        self.edge_encoders = nn.ModuleDict({n: make_mlp(w, latent, hidden_layers, latent) for n, w in widths.items()})
+        encoded = getattr(processor, "encoded_edge_sets", None)  # a processor may read some edge sets raw (None: all encoded)
+        self.edge_encoders = nn.ModuleDict(
+            {n: make_mlp(w, latent, hidden_layers, latent) for n, w in widths.items() if encoded is None or n in encoded}
+        )
         self.processor = processor
         self.decoder = make_mlp(latent, latent, hidden_layers, OUTPUT_SIZE, layer_norm=False)
 
@@ -57,10 +61,10 @@ class LearnedModel(nn.Module):
         """Normalised acceleration (V,3) at positions x_t = `pos`, x_{t-1} = `prev`; `accumulate` updates the input normalisers."""
         raw_nodes, raw_sets = build_features(topo, pos, prev, self.spec)
         x = self.node_encoder(self.node_normalizer(raw_nodes, accumulate))
-        sets = {
-            n: EdgeSet(self.edge_encoders[n](self.edge_normalizers[n](es.features, accumulate)), es.senders, es.receivers)
-            for n, es in raw_sets.items()
-        }
+        sets = {}
+        for n, es in raw_sets.items():
+            features = self.edge_normalizers[n](es.features, accumulate)
+            sets[n] = EdgeSet(self.edge_encoders[n](features) if n in self.edge_encoders else features, es.senders, es.receivers)
         x = self.processor(x, ProcessorInputs(sets, pos, topo.mesh_pos, topology_key))
         return self.decoder(x)
 

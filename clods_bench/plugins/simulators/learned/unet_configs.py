@@ -1,4 +1,4 @@
-"""Options of the BSMS-style, HCMT-style and DHMP-style simulators: the shared learned options plus their U-Net's shape.
+"""Options of the BSMS, HCMT-style and DHMP simulators: the shared learned options plus their U-Net's shape.
 
 Kept free of torch so the plugin registry can load them without importing a model.
 """
@@ -13,22 +13,16 @@ from clods_bench.plugins.simulators.learned.config import LearnedConfig
 
 @dataclass(frozen=True)
 class BsmsConfig(LearnedConfig):
-    """BSMS-GNN-style simulator: the shared model and trainer (latent 128, 2 hidden layers) with a bi-stride U-Net."""
+    """BSMS-GNN's processor (its bi-stride message-passing U-Net) in the shared model and trainer (latent 128, 2 hidden layers)."""
 
     levels: int = 6
-    """Coarse levels below the mesh (BSMS `unet_depth`); levels that have shrunk to one node per component stay as they are."""
-    blocks_per_level: int = 1
-    """Message-passing blocks at each level on the way down and again on the way up (BSMS: 1)."""
-    bottom_blocks: int = 1
-    """Message-passing blocks at the coarsest level."""
+    """Coarse levels below the mesh (BSMS `unet_depth`): one GMP per level on the way down and up, one at the bottom."""
 
     def validate(self, where: str = "sim_config.bsms") -> None:
         """Raise ClodsError naming the first field out of range."""
         super().validate(where)
-        for name, least in (("levels", 0), ("blocks_per_level", 1), ("bottom_blocks", 1)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < least:
-                raise ClodsError(f"must be an integer >= {least}, got {value!r}", where=f"{where}.{name}")
+        if not isinstance(self.levels, int) or self.levels < 0:
+            raise ClodsError(f"must be an integer >= 0, got {self.levels!r}", where=f"{where}.levels")
 
 
 @dataclass(frozen=True)
@@ -59,28 +53,29 @@ class HcmtConfig(LearnedConfig):
 
 @dataclass(frozen=True)
 class DhmpConfig(LearnedConfig):
-    """DHMP-style simulator: the shared model and trainer with anisotropic message passing over learned levels.
+    """DHMP (EvoMesh) processor in the shared model and trainer: anisotropic message passing over learned levels.
 
-    Defaults follow the authors' public code (hbell99/EvoMesh `main.py`, `models.py`): 7 levels of which the
-    first 3 are bi-stride levels, one bottom layer, Gumbel temperature 5 decayed by 0.999 a call down to 0.1.
+    Defaults are the authors' flag settings (hbell99/EvoMesh `main.py`, `models.py`, `configs/flag`): 7 levels of
+    which the first 3 are bi-stride levels, one bottom layer, Gumbel temperature 5 decayed by 0.999 a call down to 0.1.
     """
 
     levels: int = 7
     """Coarse levels below the mesh (`multi_mesh_layer`)."""
     fixed_levels: int = 3
-    """The first levels use the bi-stride (BSMS) selection (`pre_layer_num`); the rest select nodes with learned scores."""
+    """The first levels use EvoMesh's bi-stride selection (`pre_layer_num`); the rest select nodes with learned scores."""
     bottom_blocks: int = 1
-    """Anisotropic layers at the coarsest level."""
+    """Anisotropic layers at the coarsest level (`bottom_layer_num`; the first runs twice, as the code does on cloth)."""
     tau_start: float = 5.0
-    """Gumbel-softmax temperature at the first training call."""
+    """Gumbel-softmax temperature before the first training call; the k-th training call uses
+    max(tau_start * tau_decay^k, tau_min), as the code's per-call decay (which also decays in evaluation)."""
     tau_decay: float = 0.999
-    """The temperature is multiplied by this after every training call of the processor..."""
+    """Factor per training call of the processor..."""
     tau_min: float = 0.1
     """...down to this floor."""
     keep_ratio: float | None = None
-    """None: a node is kept when its sampled 'keep' wins, so a level's size is learned (the public code; it may
-    shrink to the one node per component this implementation always keeps). A fraction r in (0, 1]: each connected
-    component keeps its max(1, round(r n)) nodes of highest sampled keep-minus-drop margin (Gumbel top-k)."""
+    """None: a node is kept when its sampled 'keep' wins, so a level's size is learned (the authors' rule; this
+    implementation keeps at least one node per component). A fraction r in (0, 1], not in the authors' code: each
+    connected component keeps its max(1, round(r n)) nodes of highest sampled keep-minus-drop margin (Gumbel top-k)."""
 
     def validate(self, where: str = "sim_config.dhmp") -> None:
         """Raise ClodsError naming the first field out of range."""
