@@ -1,7 +1,7 @@
 """Make docs/lighting_flag_lit.png: one ci frame of the flag unlit and of flag-lit (same mesh), and its shading alone.
 
 Usage (after generating both ci datasets into DATA):
-    python docs/lighting_picture.py DATA TRAJ FRAME CAMERA OUT.png     # README: /work/main/data 3 20 1
+    python docs/lighting_picture.py DATA TRAJ FRAME CAMERA OUT.png     # docs/data/scenes.md: DATA 3 20 1
 """
 
 from __future__ import annotations

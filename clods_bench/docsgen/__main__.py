@@ -1,0 +1,52 @@
+"""`python -m clods_bench.docsgen refresh [--check]`: rewrite (or check) the generated blocks of README.md.
+
+The README's blocks hold numbers read from `results/` (headline results, the paper's claims) and the presets table;
+run this after regenerating the committed tables. `--check` writes nothing and exits 1 when a block is out of date
+(a test does the same). The blocks of the site's pages are filled when the site is built and are committed empty.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from clods_bench.docsgen.blocks import BLOCK, fill
+from clods_bench.errors import ClodsError
+
+
+def pages_with_blocks(root: Path) -> list[Path]:
+    """The committed pages whose generated blocks must be current: README.md."""
+    return [p for p in (root / "README.md",) if p.is_file() and BLOCK.search(p.read_text())]
+
+
+def stale_pages(root: Path) -> list[Path]:
+    """The pages whose generated blocks differ from what the generators write now."""
+    return [p for p in pages_with_blocks(root) if fill(p.read_text(), root, str(p)) != p.read_text()]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m clods_bench.docsgen", description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("refresh",), help="refresh: the generated blocks of README.md")
+    parser.add_argument("--check", action="store_true", help="exit 1, writing nothing, when a block is out of date")
+    parser.add_argument("--root", type=Path, default=Path("."), help="the checkout (default: the current directory)")
+    args = parser.parse_args(argv)
+    try:
+        stale = stale_pages(args.root)
+        if args.check:
+            for path in stale:
+                print(f"{path}: generated blocks out of date; run `python -m clods_bench.docsgen refresh`", file=sys.stderr)
+            return 1 if stale else 0
+        for path in stale:
+            path.write_text(fill(path.read_text(), args.root, str(path)))
+            print(f"{path}: generated blocks rewritten")
+    except (OSError, ClodsError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not stale:
+        print("generated blocks up to date")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
