@@ -240,7 +240,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     for name in preset_names():
         table.add_row("preset", name, preset_description(name), "built-in")
     console.print(table)
-    print_problems(console, reg)
+    print_problems(console, reg, tracebacks=args.debug)
     return 0
 
 

@@ -12,8 +12,9 @@ from __future__ import annotations
 import difflib
 import importlib.metadata
 import re
+import traceback
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import pluggy
@@ -65,6 +66,12 @@ class PluginFailure:
     names: tuple[tuple[str, str], ...] = ()
     partial: bool = False
     """True: the plugin loaded and only `names` are left out (a name two plugins provide)."""
+    detail: str = field(default="", repr=False, compare=False)
+    """The traceback, for `clods-bench --debug list`."""
+
+    @classmethod
+    def from_exception(cls, source: PluginSource, exc: BaseException, names: tuple[tuple[str, str], ...] = ()) -> "PluginFailure":
+        return cls(source, error_line(exc), names, detail="".join(traceback.format_exception(exc)))
 
     @property
     def line(self) -> str:
@@ -104,14 +111,14 @@ def error_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
-def call_guarded(pm: ClodsPluginManager, source: PluginSource, fn: Callable[[], Any]) -> tuple[bool, Any, str]:
-    """`fn()` on behalf of a plugin: (True, result, "") or (False, None, its error line); its deprecations become notices."""
+def call_guarded(pm: ClodsPluginManager, source: PluginSource, fn: Callable[[], Any]) -> tuple[bool, Any, Exception | None]:
+    """`fn()` on behalf of a plugin: (True, result, None) or (False, None, the exception); its deprecations become notices."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            ok, result, error = True, fn(), ""
+            ok, result, error = True, fn(), None
         except Exception as exc:  # a plugin's own failure, whatever it is: reported, never fatal to the others
-            ok, result, error = False, None, error_line(exc)
+            ok, result, error = False, None, exc
     for w in caught:
         if issubclass(w.category, PluginAPIDeprecationWarning):
             notice = PluginNotice(source, str(w.message), f"{w.filename}:{w.lineno}")
@@ -144,6 +151,10 @@ def _source(ep: importlib.metadata.EntryPoint) -> PluginSource:
     return PluginSource(ep.name, name or "unknown-distribution", dist.version if dist is not None else "?", ep.value)
 
 
+_IMPORT_NOTICES: dict[PluginSource, list[PluginNotice]] = {}
+"""The deprecation notices each entry point's import raised, for registries built again in the same process."""
+
+
 def load_entry_points(pm: ClodsPluginManager, group: str = ENTRY_POINT_GROUP) -> None:
     """Load every entry point of `group` on its own; each one that fails is recorded in `pm.failures` and skipped."""
     sources = sorted(((_source(ep), ep) for ep in importlib.metadata.entry_points(group=group)),
@@ -154,9 +165,14 @@ def load_entry_points(pm: ClodsPluginManager, group: str = ENTRY_POINT_GROUP) ->
             pm.failures.append(PluginFailure(source, f"its entry point name '{source.name}' is taken by "
                                                      f"{other.describe() if other else 'another plugin'}"))  # fmt: skip
             continue
+        before = len(pm.notices)
         ok, _, error = call_guarded(pm, source, lambda: register_plugin(pm, ep.load(), source))
+        if len(pm.notices) > before:  # raised by the import: a second load in this process finds the module imported
+            _IMPORT_NOTICES[source] = pm.notices[before:]
+        else:
+            pm.notices.extend(_IMPORT_NOTICES.get(source, ()))
         if not ok:
             if pm.has_plugin(source.name):
                 pm.unregister(name=source.name)
-            pm.failures.append(PluginFailure(source, error))
+            pm.failures.append(PluginFailure.from_exception(source, error))
 

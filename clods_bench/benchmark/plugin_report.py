@@ -61,12 +61,15 @@ def source_label(reg: Registry, kind: str, name: str) -> str:
     return "built-in" if source.builtin else f"{source.distribution} {source.version}"
 
 
-def print_problems(console: Console, reg: Registry) -> None:
-    """The sections of `clods-bench list` naming failed plugins and deprecated forms in use, one full line each."""
+def print_problems(console: Console, reg: Registry, tracebacks: bool = False) -> None:
+    """The sections of `clods-bench list` naming failed plugins and deprecated forms in use, one full line each
+    (`tracebacks`: and each failure's traceback, for `--debug`)."""
     if reg.failures:
         console.print("failed plugins (left out; --strict-plugins makes this an error):", style="bold", highlight=False)
         for f in reg.failures:
             console.print(f"  - {escape(f.line)}", highlight=False, soft_wrap=True)
+            if tracebacks and f.detail:
+                console.print(escape(f.detail), highlight=False, soft_wrap=True)
     if reg.notices:
         console.print(f"deprecated forms in use (they still work; plugin API {API_VERSION}):", style="bold", highlight=False)
         for n in reg.notices:

@@ -25,6 +25,7 @@ from clods_bench.benchmark.plugin_loading import (
     PluginNotice,
     PluginSource,
     call_guarded,
+    error_line,
     load_entry_points as load_entry_point_plugins,
     register_plugin,
 )
@@ -96,8 +97,8 @@ class Registry:
             ok, items, error = call_guarded(collector, source, lambda: _plugin_items(pm, plugin, provided))
             if not ok:
                 if source.in_code:
-                    raise ClodsError(error, where=source.describe())
-                reg.failures.append(PluginFailure(source, error, tuple(provided)))
+                    raise ClodsError(error_line(error), where=source.describe()) from error
+                reg.failures.append(PluginFailure.from_exception(source, error, tuple(provided)))
                 continue
             for kind, item in items:
                 reg._add(kind, item, source, withheld)

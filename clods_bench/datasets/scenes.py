@@ -14,6 +14,7 @@ the same regime as the interpolation frames, even for the short trajectories of 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 import sys
 import time
@@ -58,6 +59,12 @@ class _SceneSpecType(type):
         scene = super().__call__(*args, **kwargs)
         bind_legacy_cloth(scene)
         return scene
+
+    @property
+    def __signature__(cls) -> inspect.Signature:
+        """The dataclass's own signature (help() and the docs would otherwise show this `__call__`'s)."""
+        sig = inspect.signature(cls.__init__)  # type: ignore[misc]
+        return sig.replace(parameters=list(sig.parameters.values())[1:])
 
 
 @dataclass(frozen=True)
@@ -123,10 +130,12 @@ class SceneSpec(metaclass=_SceneSpecType):
         """The cloth's resolution when the config names none."""
         return self.cloth.default_resolution
 
-    @property
-    def size(self) -> tuple[float, float] | None:
-        """The cloth's size, if it has one: kept for `build_mesh` overrides written for the pre-1.0 form (deprecated)."""
-        return legacy_size(self.cloth)
+    def __getattr__(self, name: str) -> Any:
+        """`size`, the cloth's size, read by `build_mesh` overrides of the pre-1.0 form (deprecated; not in the API)."""
+        size = legacy_size(self.__dict__["cloth"]) if name == "size" and "cloth" in self.__dict__ else None
+        if size is None:
+            raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
+        return size
 
     def build_mesh(self, resolution: Resolution | None = None) -> ClothMesh:
         """The scene's validated cloth mesh at `resolution` (None: the cloth's default); one ClodsError naming the scene if bad.

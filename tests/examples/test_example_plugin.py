@@ -43,6 +43,8 @@ def test_example_plugin_runs_through_the_cli_and_appears_in_tables(tmp_path: Pat
     reg = installed_example
     assert "damped-velocity" in reg.names("simulator")
     assert reg.origins[("simulator", "damped-velocity")] == "example_sim"
+    source = reg.sources["example_sim"]  # declares CLODS_BENCH_API = "1.1", loads with nothing to report
+    assert (source.distribution, source.version) == ("clods-bench-example-sim", "0.1.0") and not reg.failures and not reg.notices
     base = [*TINY, f"data.root={tiny_root / 'data'}", f"runs_dir={tmp_path / 'runs'}"]
     sets = [arg for o in base for arg in ("--set", o)]
 

@@ -45,6 +45,7 @@ def installed_scene(tmp_path_factory: pytest.TempPathFactory):
 def test_example_scene_generates_data_and_runs_cdg(tmp_path: Path, installed_scene) -> None:
     reg = installed_scene
     assert reg.origins[("scene", "banner")] == "example_scene"
+    assert reg.sources["example_scene"].distribution == "clods-bench-example-scene" and not reg.failures and not reg.notices
     scene = reg.get("scene", "banner")
     overrides = [*TINY, "data.scene=banner", f"data.root={tmp_path / 'data'}", f"runs_dir={tmp_path / 'runs'}"]
     sets = [arg for o in overrides for arg in ("--set", o)]

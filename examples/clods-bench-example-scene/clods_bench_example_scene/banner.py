@@ -10,8 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from clods_bench.datasets.cloths import MeshCloth, mesh_cloth_from_file
-from clods_bench.errors import ClodsError
+from clods_bench.api import ClodsError, MeshCloth, mesh_cloth_from_file
 
 BANNER_OBJ = Path(__file__).with_name("banner.obj")
 

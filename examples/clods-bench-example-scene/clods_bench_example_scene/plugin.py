@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.datasets.cloth_solver import SolverParams
-from clods_bench.datasets.scenes import SceneSpec
+from clods_bench.api import SceneSpec, SolverParams, hookimpl
 
 from clods_bench_example_scene.banner import load_banner
+
+CLODS_BENCH_API = "1.1"  # the plugin API this package is written for (clods_bench.api)
 
 CANVAS = SolverParams(density=0.3, youngs_modulus=8000.0, bending_stiffness=1e-3, turbulence_amplitude=0.3, air_drag=0.02,
                       damping_stiffness=1e-3)  # fmt: skip

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.api import PluginSpec, hookimpl
 
 from clods_bench_example_sim.simulator import DampedVelocity, DampedVelocityConfig
+
+CLODS_BENCH_API = "1.1"  # the plugin API this package is written for (clods_bench.api)
 
 
 @hookimpl

@@ -7,8 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
-from clods_bench.errors import ClodsError
+from clods_bench.api import ClodsError, FitContext, RolloutInput
 
 
 @dataclass(frozen=True)
