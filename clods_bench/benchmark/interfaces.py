@@ -1,5 +1,7 @@
 """The plugin interfaces, documented in one place: `Simulator`, `Renderer` and `VideoPredictor`.
 
+They are part of the public, versioned plugin API (`clods_bench.api`): a minor version only adds to them.
+
 Conventions (see also `clods_bench.datasets.types` and `clods_bench.datasets.cameras`):
 - positions are world coordinates in metres, float32 numpy arrays at the interface;
 - frame t of a trajectory is `t * dt` seconds after frame 0;

@@ -9,6 +9,7 @@ points) load first, then the others in the order of their distribution names.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import importlib.metadata
 import re
@@ -35,12 +36,15 @@ class PluginSource:
     """Where a plugin comes from: an entry point of an installed distribution, or code that registered it."""
 
     name: str
-    """The plugin's name in the plugin manager: the entry point's name (or pluggy's for a plugin given in code)."""
+    """The plugin's name in the plugin manager: its entry point's name (`DIST:NAME` when another plugin has that
+    name already), or pluggy's for a plugin given in code."""
     distribution: str = ""
     """The distribution that declares the entry point ("" for a plugin given in code)."""
     version: str = ""
     value: str = ""
     """The entry point's target, `module` or `module:attribute`."""
+    entry_point: str = ""
+    """The entry point's name ("" for a plugin given in code)."""
 
     @property
     def in_code(self) -> bool:
@@ -54,7 +58,7 @@ class PluginSource:
         """'plugin DIST VERSION (entry point NAME = VALUE)', the way every message names the plugin."""
         if self.in_code:
             return f"plugin {self.name} (registered in code)"
-        return f"plugin {self.distribution} {self.version} (entry point {self.name} = {self.value})"
+        return f"plugin {self.distribution} {self.version} (entry point {self.entry_point} = {self.value})"
 
 
 @dataclass(frozen=True)
@@ -111,13 +115,13 @@ def error_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
-def call_guarded(pm: ClodsPluginManager, source: PluginSource, fn: Callable[[], Any]) -> tuple[bool, Any, Exception | None]:
+def call_guarded(pm: ClodsPluginManager, source: PluginSource, fn: Callable[[], Any]) -> tuple[bool, Any, BaseException | None]:
     """`fn()` on behalf of a plugin: (True, result, None) or (False, None, the exception); its deprecations become notices."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             ok, result, error = True, fn(), None
-        except Exception as exc:  # a plugin's own failure, whatever it is: reported, never fatal to the others
+        except (Exception, SystemExit) as exc:  # a plugin's own failure, whatever it is: reported, never fatal to the others
             ok, result, error = False, None, exc
     for w in caught:
         if issubclass(w.category, PluginAPIDeprecationWarning):
@@ -148,7 +152,7 @@ def register_plugin(pm: ClodsPluginManager, plugin: Any, source: PluginSource) -
 def _source(ep: importlib.metadata.EntryPoint) -> PluginSource:
     dist = getattr(ep, "dist", None)
     name = dist.metadata["Name"] if dist is not None else "unknown-distribution"
-    return PluginSource(ep.name, name or "unknown-distribution", dist.version if dist is not None else "?", ep.value)
+    return PluginSource(ep.name, name or "unknown-distribution", dist.version if dist is not None else "?", ep.value, ep.name)
 
 
 _IMPORT_NOTICES: dict[PluginSource, list[PluginNotice]] = {}
@@ -160,11 +164,8 @@ def load_entry_points(pm: ClodsPluginManager, group: str = ENTRY_POINT_GROUP) ->
     sources = sorted(((_source(ep), ep) for ep in importlib.metadata.entry_points(group=group)),
                      key=lambda s: (not s[0].builtin, _normalized(s[0].distribution), s[0].name))  # fmt: skip
     for source, ep in sources:
-        if pm.has_plugin(source.name):
-            other = pm.sources.get(source.name)
-            pm.failures.append(PluginFailure(source, f"its entry point name '{source.name}' is taken by "
-                                                     f"{other.describe() if other else 'another plugin'}"))  # fmt: skip
-            continue
+        if pm.has_plugin(source.name):  # two packages' entry points of one name (say, "plugin"): both load
+            source = dataclasses.replace(source, name=f"{source.distribution}:{source.name}")
         before = len(pm.notices)
         ok, _, error = call_guarded(pm, source, lambda: register_plugin(pm, ep.load(), source))
         if len(pm.notices) > before:  # raised by the import: a second load in this process finds the module imported

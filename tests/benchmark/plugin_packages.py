@@ -154,15 +154,15 @@ def module_name(dist: str) -> str:
     return "cbt_" + dist.replace("-", "_")
 
 
-def install(site: Path, dist: str, source: str, version: str = "0.1.0") -> None:
-    """Write `source` as a module and a dist-info declaring it as the `clods_bench` entry point `dist`."""
+def install(site: Path, dist: str, source: str, version: str = "0.1.0", entry_point: str | None = None) -> None:
+    """Write `source` as a module and a dist-info declaring it as the `clods_bench` entry point `entry_point` (`dist`)."""
     site.mkdir(parents=True, exist_ok=True)
     module = module_name(dist)
     (site / f"{module}.py").write_text(textwrap.dedent(source))
     info = site / f"{module}-{version}.dist-info"
     info.mkdir()
     (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
-    (info / "entry_points.txt").write_text(f"[clods_bench]\n{dist} = {module}\n")
+    (info / "entry_points.txt").write_text(f"[clods_bench]\n{entry_point or dist} = {module}\n")
 
 
 def install_all(site: Path, names: list[str] | None = None) -> None:

@@ -109,8 +109,6 @@ def test_a_fresh_interpreter_with_the_plugins_installed(site: Path, tmp_path: Pa
     assert res.returncode == 0, res.stderr
     _once_each(res.stderr)
     assert "internal error" not in res.stderr and "failed plugins" in res.stdout
-    strict = run_cli(site, "list", env={STRICT_ENV: "1"})
-    assert strict.returncode == 2 and "plugin problem(s) in strict mode" in strict.stderr
     assert set(PACKAGES) == set(FAILING) | {"twin-a", "good", "deprecated-scene"}
 
 

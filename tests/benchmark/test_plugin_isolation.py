@@ -14,7 +14,7 @@ from clods_bench.api_version import PluginAPIDeprecationWarning
 from clods_bench.benchmark.registry import STRICT_ENV, PluginLoadWarning, Registry, default_registry, make_plugin_manager
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.errors import ClodsError
-from tests.benchmark.plugin_packages import install_all, module_name
+from tests.benchmark.plugin_packages import install, install_all, module_name
 
 
 @pytest.fixture
@@ -111,6 +111,17 @@ def test_a_name_two_plugins_provide_is_used_by_neither_and_a_builtin_name_stays_
     shadow = _only_line(load, "twin-a")
     assert "its simulator 'constvel' is not used: plugin clods-bench" in shadow
     assert reg.origins[("simulator", "constvel")] == "simulators" and reg.get("simulator", "constvel").description != "a"
+
+
+def test_two_packages_may_name_their_entry_points_alike(site: Path) -> None:
+    for dist in ("alpha", "beta"):
+        install(site, dist, f"from clods_bench.api import PluginSpec, hookimpl\n\n@hookimpl\ndef clods_bench_simulators():\n"
+                            f"    return [PluginSpec(name='{dist}-sim', description='{dist}', build=lambda c, x: None)]\n",
+                entry_point="plugin")  # fmt: skip
+    reg = Registry.from_plugin_manager(make_plugin_manager())
+    assert reg.failures == [] and {"alpha-sim", "beta-sim"} <= set(reg.names("simulator"))
+    assert (reg.origins[("simulator", "alpha-sim")], reg.origins[("simulator", "beta-sim")]) == ("plugin", "beta:plugin")
+    assert reg.sources["beta:plugin"].describe() == "plugin beta 0.1.0 (entry point plugin = cbt_beta)"
 
 
 def test_deprecated_scene_form_works_with_a_warning_saying_what_to_write(site: Path) -> None:
