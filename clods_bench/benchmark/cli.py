@@ -473,6 +473,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         # Rows of one config (a table reusing another's run) share their record: count each (config, seed) once.
         jobs = {(str(rdir), seed): seed in done for (_, cfg), done, rdir in zip(runs, finished, rdirs) for seed in cfg.seeds}
         console.print(f"{sum(jobs.values())} of {len(jobs)} seed jobs have records under {runs[0][1].runs_dir if runs else '-'}; {len(jobs) - sum(jobs.values())} to run")
+        if args.check is not None:
+            _report_config_changes(args.check, runs, rdirs, args.preset)
         return 0
     manifest = reproduce(
         args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs, args.first_seeds,
@@ -488,12 +490,58 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             highlight=False,
         )
     if args.check is not None:
-        # With fewer seeds than the committed tables, the fresh std columns (and the seed count) say nothing.
-        skip = SEED_SPREAD_COLUMNS if args.first_seeds is not None else ()
         if unfinished and len(unfinished) == len(manifest["tables"]):
             raise ClodsError(f"the time budget of {args.budget:g} s left no table to check", where="--budget", hint="give a larger budget")
-        return _report_comparison(args.check, out, None, skip, not_run=sorted(unfinished))
+        return _report_check(args.check, out, [t for t in manifest["tables"] if t not in unfinished], args.first_seeds, args.preset,
+                             not_run=sorted(unfinished))  # fmt: skip
     return 0
+
+
+def _report_check(committed: Path, fresh: Path, tables: Sequence[str], first_seeds: int | None, preset: str, not_run: Sequence[str] = ()) -> int:
+    """`reproduce --check`: print what moved (rows with their first differing stage, table cells) and the tables to regenerate."""
+    from clods_bench.benchmark.regression_check import check_reproduction, regenerate_command
+
+    if not_run:
+        console.print(f"not checked (left by the time budget): {', '.join(not_run)}", highlight=False)
+    report = check_reproduction(committed, fresh, tables, first_seeds)
+    for note in report.notes:
+        console.print(note, highlight=False)
+    if report.ok:
+        what = "first seed of every" if first_seeds is not None else "every"
+        console.print(f"the {what} row of {len(tables)} table(s) in {fresh} equals {committed} (exact, or within its tolerance.yaml)", highlight=False)
+        return 0
+    if report.digest_lines:
+        err_console.print(f"[bold red]{len(report.digest_lines)} row seed(s) moved[/bold red] (first stage that differs, metrics that moved):", highlight=False)
+        for line in report.digest_lines:
+            err_console.print(f"  {line}", highlight=False, markup=False)
+    if report.table_lines:
+        err_console.print(f"[bold red]{len(report.table_lines)} table cell(s) moved[/bold red] ({fresh} against {committed}):", highlight=False)
+        for line in report.table_lines:
+            err_console.print(f"  {line}", highlight=False, markup=False)
+    err_console.print(f"tables to regenerate: {', '.join(report.tables)}; when the change is intended: {regenerate_command(preset, report.tables, str(committed))}",
+                      highlight=False, markup=False)  # fmt: skip
+    return 1
+
+
+def _report_config_changes(committed: Path, runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path], preset: str) -> None:
+    """`reproduce --dry-run --check DIR`: the rows whose resolved config differs from the one DIR's digests were made
+    with (their record keys differ), and the tables that must be regenerated for them."""
+    from clods_bench.benchmark import run_digests
+    from clods_bench.benchmark.regression_check import regenerate_command
+    from clods_bench.benchmark.reproduce import record_key, run_name
+
+    committed_digests = run_digests.load(Path(committed) / run_digests.DIGESTS_FILE)
+    current = {run_name(run): record_key(rdir) for (run, _), rdir in zip(runs, rdirs)}
+    changed = run_digests.changed_configs(committed_digests, current)
+    if not changed:
+        console.print(f"every row's config is the one {committed} was made with (a code change can still move numbers: run the check)")
+        return
+    console.print(f"{len(changed)} row(s) with another config than {committed}'s:", highlight=False)
+    for _, line in changed:
+        console.print(f"  {line}", highlight=False, markup=False)
+    names = [name for name, _ in changed]
+    tables = list(dict.fromkeys([*run_digests.tables_of(names, committed_digests), *(run.table for run, _ in runs if run_name(run) in names)]))
+    console.print(f"tables to regenerate: {', '.join(tables)}: {regenerate_command(preset, tables, str(committed))}", highlight=False, markup=False)
 
 
 def _record_dirs(runs: Sequence[tuple[Any, RunConfig]], registry: Any) -> list[Path]:
@@ -514,10 +562,6 @@ def _finished_seeds(runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path]
     from clods_bench.benchmark.records import load_seed_result
 
     return [[int(s) for s in cfg.seeds if load_seed_result(rdir, int(s)) is not None] for (_, cfg), rdir in zip(runs, rdirs)]
-
-
-SEED_SPREAD_COLUMNS = ("*/std", "seeds")
-"""Columns a `--first-seeds` check leaves out: seed-to-seed std and the seed count."""
 
 
 def _report_comparison(committed: Path, fresh: Path, tolerance: Path | None, skip_columns: Sequence[str] = (), not_run: Sequence[str] = ()) -> int:

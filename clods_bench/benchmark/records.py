@@ -88,14 +88,6 @@ def save_seed_result(rdir: Path, seed: int, result: TaskResult) -> dict[str, Any
 def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], extra_timings: dict[str, float]) -> dict[str, Any]:
     """Write `record.json`: mean +- std over seeds of every metric and timing, plus provenance."""
     seeds = sorted(per_seed)
-    metric_keys = sorted({k for r in per_seed.values() for k in r["metrics"]})
-    timing_keys = sorted({k for r in per_seed.values() for k in r["timings"]})
-
-    def stats(section: str, key: str) -> dict[str, float]:
-        values = [_num(per_seed[s][section].get(key)) for s in seeds]
-        m, sd = mean_std(values)
-        return {"mean": m, "std": sd}
-
     record = {
         "task": cfg.task,
         "label": default_label(cfg),
@@ -104,8 +96,7 @@ def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], e
         "scene": cfg.data.scene,
         "preset": cfg.preset,
         "seeds": seeds,
-        "metrics": {k: stats("metrics", k) for k in metric_keys},
-        "timings": {k: stats("timings", k) for k in timing_keys},
+        **summary(per_seed),
         "run_timings": extra_timings,
         "per_seed": {str(s): {"metrics": per_seed[s]["metrics"], "timings": per_seed[s]["timings"], "extra": per_seed[s].get("extra", {})} for s in seeds},
         "config": cfg.to_dict(),
@@ -116,6 +107,28 @@ def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], e
     }
     write_json(rdir / RECORD_FILE, record)
     return record
+
+
+def summary(per_seed: dict[Any, dict[str, Any]]) -> dict[str, Any]:
+    """{'metrics': {key: {'mean', 'std'}}, 'timings': {...}} over the given seeds' results."""
+    out: dict[str, Any] = {}
+    for section in ("metrics", "timings"):
+        keys = sorted({k for r in per_seed.values() for k in r[section]})
+        out[section] = {}
+        for key in keys:
+            m, sd = mean_std([_num(r[section].get(key)) for r in per_seed.values()])
+            out[section][key] = {"mean": m, "std": sd}
+    return out
+
+
+def restrict(record: dict[str, Any], seeds: Sequence[int]) -> dict[str, Any]:
+    """`record` as if only `seeds` had run: per-seed results kept for those, means and stds recomputed from them."""
+    keep = {str(s): record["per_seed"][str(s)] for s in seeds if str(s) in record.get("per_seed", {})}
+    if not keep:
+        raise ClodsError(f"the record has none of the seeds {list(seeds)} (it has {record.get('seeds')})", where=str(record.get("label")))
+    out = dict(record)
+    out.update(summary(keep), per_seed=keep, seeds=sorted(int(s) for s in keep))
+    return out
 
 
 def iter_records(runs_dir: Path | Sequence[Path], task: str | None = None) -> Iterator[tuple[Path, dict[str, Any]]]:

@@ -22,10 +22,12 @@ from typing import Any, Sequence
 import pandas as pd
 from rich.console import Console
 
+from clods_bench import deterministic_mode
 from clods_bench.atomic import write_json, write_text
+from clods_bench.benchmark import run_digests
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict, load_config, read_yaml
 from clods_bench.benchmark.environment import git_commit, package_versions
-from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.records import RECORD_FILE, restrict
 from clods_bench.errors import ClodsError
 
 PLAN_VERSION = 1
@@ -248,6 +250,10 @@ def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame
     return display, numeric, ""
 
 
+FIRST_SEED_DIR = "first_seed"
+"""Subfolder of a reproduce output holding every table's CSV over the first seed alone (what `--first-seeds 1` checks)."""
+
+
 def write_plan_table(table: PlanTable, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
     """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table, rows in plan order."""
     from clods_bench.benchmark.tables import scored_scenes, to_markdown
@@ -360,7 +366,22 @@ def reproduce(
             continue
         recs = [records[run_name(r)] for r in plan.runs if r.table == table.id]
         written += [p.name for p in write_plan_table(table, recs, out_dir, preset)]
+        first = min(recs[0]["seeds"]) if recs and recs[0]["seeds"] else None
+        if any(len(r["seeds"]) > 1 for r in recs):  # the first seed's table too: what a `--first-seeds 1` check compares with
+            single = [restrict(r, [min(r["seeds"])]) for r in recs]
+            write_plan_table(table, single, out_dir / FIRST_SEED_DIR, preset)
+        elif first is not None and (out_dir / FIRST_SEED_DIR).is_dir():
+            (out_dir / FIRST_SEED_DIR / f"{table.id}.csv").unlink(missing_ok=True)  # a stale one from an earlier 2-seed run
         console.print(f"[bold]{table.id}[/bold]: {len(recs)} row(s)")
+    rows = {}
+    for run, cfg in runs:
+        if run_name(run) not in records:
+            continue
+        canonical_name = same_as[run_name(run)]
+        rows[run_name(run)] = run_digests.row_entry(run.table, run.label, record_key(summaries[canonical_name]["record_dir"]),
+                                                    records[run_name(run)], None if canonical_name == run_name(run) else canonical_name)  # fmt: skip
+    numerics = next((r.get("numerics") for r in records.values() if r.get("numerics")), deterministic_mode.describe())
+    run_digests.write(out_dir / run_digests.DIGESTS_FILE, run_digests.build(preset, rows, numerics), merge_into_existing=bool(only))
     manifest = {
         "preset": preset,
         "plan": _shown(plan_file),
@@ -377,7 +398,34 @@ def reproduce(
         "budget_seconds": budget_seconds,
         "unfinished": unfinished,
         "wall_seconds_total": time.perf_counter() - t_start,
+        "numerics": numerics,
         "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
+    if only:
+        manifest = _merged_manifest(out_dir / MANIFEST_FILE, manifest)
     write_json(out_dir / MANIFEST_FILE, manifest)
     return manifest
+
+
+def _merged_manifest(path: Path, new: dict[str, Any]) -> dict[str, Any]:
+    """`new` (a `--only` run) over an existing manifest of the same preset: its tables' runs and files replaced,
+    the other tables' kept (an unreadable or other-preset manifest is replaced whole)."""
+    try:
+        old = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return new
+    if not isinstance(old, dict) or old.get("preset") != new["preset"]:
+        return new
+    tables = set(new["tables"])
+    merged = dict(new)
+    merged["runs"] = [r for r in old.get("runs", []) if r.get("table") not in tables] + new["runs"]
+    stems = {Path(f).stem for f in new["files"]}
+    merged["files"] = sorted({f for f in old.get("files", []) if Path(f).stem not in stems} | set(new["files"]))
+    merged["tables"] = [t for t in old.get("tables", []) if t not in tables] + new["tables"]
+    return merged
+
+
+def record_key(record_dir: str | Path) -> str:
+    """A run's record folder below its runs folder (`<task>/<label>/<scene>-<preset>-<config digest>`): what names its
+    config, wherever the runs folder lies."""
+    return "/".join(Path(record_dir).parts[-3:])
