@@ -1,0 +1,56 @@
+"""The README stays short and current, and the site's pages stay short and speak of the software, not its history."""
+
+from __future__ import annotations
+
+import re
+
+from clods_bench.docsgen.__main__ import stale_pages
+from clods_bench.docsgen.blocks import fill
+from tests.docs.pages import DOCS, ROOT, links, site_pages
+
+HISTORY = re.compile(
+    r"\bissue \d+|\bissues? \d+|\bsessions? \d+|\b(first|second|third|fourth|fifth|sixth|seventh|eighth) visit\b|"
+    r"\bGPU visits?\b|\bthis machine\b|\bengineers?\b|/work/",
+    re.I,
+)
+"""Words of a lab notebook that no user page may contain: tracker numbers, work sessions, machine visits, people."""
+
+
+def test_the_readme_is_short() -> None:
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 300
+
+
+def test_no_page_of_the_site_is_long() -> None:
+    long = {page: len(text.splitlines()) for page, text in site_pages().items() if len(text.splitlines()) > 400}
+    assert not long, f"pages over 400 lines: {long}"
+
+
+def test_the_readme_blocks_are_current() -> None:
+    stale = stale_pages(ROOT)
+    assert not stale, f"{stale}: generated blocks out of date; run `python -m clods_bench.docsgen refresh`"
+
+
+def test_a_stale_block_is_found(tmp_path) -> None:
+    readme = (ROOT / "README.md").read_text()
+    start = readme.index("<!-- generated:presets")
+    body = readme.index("\n", start) + 1
+    (tmp_path / "README.md").write_text(readme[:body] + "| stale |\n" + readme[readme.index("<!-- end generated:presets -->"):])
+    for sub in ("docs", "results", "clods_bench"):
+        (tmp_path / sub).symlink_to(ROOT / sub)
+    assert stale_pages(tmp_path) == [tmp_path / "README.md"]
+    fixed = fill((tmp_path / "README.md").read_text(), tmp_path, "README.md")
+    assert fixed == readme
+
+
+def test_the_readme_reaches_the_three_questions_in_one_click() -> None:
+    targets = {target for _, target in links((ROOT / "README.md").read_text())}
+    assert {"docs/plugins/simulator.md", "docs/gpu.md", "docs/results/claims.md"} <= targets
+
+
+def test_user_pages_speak_of_the_software_not_its_history() -> None:
+    pages = {f"docs/{p}": t for p, t in site_pages().items()}
+    pages["README.md"] = (ROOT / "README.md").read_text()
+    found = [f"{page}:{n}: {m.group(0)!r}" for page, text in pages.items() for n, line in enumerate(text.splitlines(), 1)
+             for m in HISTORY.finditer(line)]  # fmt: skip
+    assert not found, "\n".join(found)
+    assert (DOCS / "changelog.md").read_text().strip() == '--8<-- "CHANGELOG.md"'

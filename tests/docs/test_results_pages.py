@@ -1,0 +1,81 @@
+"""The results pages hold every committed table with its command, and a missing or unlisted file fails naming it."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from clods_bench.docsgen.results_pages import nav_entries, plan_tables, plot_pages, results_pages, table_pages
+from clods_bench.errors import ClodsError
+from tests.docs.pages import ROOT
+
+
+def test_every_plan_table_has_a_page_with_its_ci_rows_and_command() -> None:
+    pages = {g.path: g for g in results_pages(ROOT)}
+    for t in plan_tables(ROOT):
+        text = pages[f"results/{t.id}.md"].text
+        with (ROOT / "results/ci" / f"{t.id}.csv").open(newline="") as fh:
+            labels = [row[next(iter(row))] for row in csv.DictReader(fh)]
+        for label in labels:
+            assert f"| {label} " in text, f"{t.id}: row {label!r} of the committed CSV is not on its page"
+        assert f"clods-bench reproduce --preset ci --jobs 2 --only {t.id}" in text
+        assert pages[f"results/files/ci/{t.id}.csv"].source == ROOT / "results/ci" / f"{t.id}.csv"
+    assert [next(iter(e.values())) for e in nav_entries(ROOT)] == [f"results/{t.id}.md" for t in plan_tables(ROOT)]
+
+
+def test_every_small_table_and_picture_is_on_a_page() -> None:
+    text = "\n".join(g.text for g in results_pages(ROOT) if g.text)
+    for md in (ROOT / "results/small-partial").rglob("*.md"):
+        if md.name != "README.md":
+            assert f"`{md.relative_to(ROOT / 'results/small-partial').with_suffix('')}`" in text, md
+    copied = {g.source for g in plot_pages(ROOT) if g.source}
+    assert copied == set((ROOT / "results").rglob("*.png"))
+
+
+def _fake_root(tmp_path: Path) -> Path:
+    """A checkout with a two-table plan, its ci tables, one small table and one picture, all listed."""
+    (tmp_path / "clods_bench/benchmark/plans").mkdir(parents=True)
+    (tmp_path / "clods_bench/benchmark/plans/reproduce.yaml").write_text(
+        "version: 1\ntables:\n  - {id: t1, task: cdg, title: 'Table 1: one'}\n  - {id: t2, task: nvs, title: 'Table 2: two'}\nruns: []\n"
+    )
+    for folder in ("results/ci", "results/small-partial", "results/plots", "docs"):
+        (tmp_path / folder).mkdir(parents=True)
+    for t in ("t1", "t2"):
+        (tmp_path / f"results/ci/{t}.md").write_text(f"caption of {t}\n\n| Method | x |\n|:--|--:|\n| A | 1 |\n")
+        (tmp_path / f"results/ci/{t}.csv").write_text("method,x\nA,1\n")
+    (tmp_path / "results/small-partial/t1_small.md").write_text("| Method | x |\n|:--|--:|\n| A | 2 |\n")
+    (tmp_path / "results/plots/p.png").write_bytes(b"\x89PNG")
+    (tmp_path / "docs/results_sources.yaml").write_text(
+        "ci:\n  folder: results/ci\n  made_by: make ci\n  one_table: make {table}\n  check: check ci\n"
+        "small:\n  folder: results/small-partial\n  tables:\n    - file: t1_small\n      table: t1\n      made_by: make small\n"
+        "plots:\n  - file: results/plots/p.png\n    title: P\n    caption: a plot\n    made_by: make p\n"
+    )  # fmt: skip
+    return tmp_path
+
+
+def test_a_missing_or_unlisted_result_file_fails_naming_where(tmp_path: Path) -> None:
+    root = _fake_root(tmp_path)
+    pages = {g.path: g for g in results_pages(root)}
+    assert "| A | 2 |" in pages["results/t1.md"].text and "make small" in pages["results/t1.md"].text
+    assert "make t2" in pages["results/t2.md"].text and "## At `small`" not in pages["results/t2.md"].text
+
+    (root / "results/ci/t2.md").unlink()
+    with pytest.raises(ClodsError, match=r"reproduce\.yaml:4: table 't2' has no committed file results/ci/t2\.md"):
+        table_pages(root)
+    (root / "results/ci/t2.md").write_text("| Method |\n|--|\n| A |\n")
+
+    (root / "results/small-partial/extra_small.md").write_text("| Method |\n")
+    with pytest.raises(ClodsError, match=r"results_sources\.yaml: small\.tables: no entry for results/small-partial/extra_small\.md"):
+        table_pages(root)
+    (root / "results/small-partial/extra_small.md").unlink()
+
+    (root / "results/small-partial/t1_small.md").unlink()
+    with pytest.raises(ClodsError, match=r"results_sources\.yaml:9: table file results/small-partial/t1_small\.md is missing"):
+        table_pages(root)
+    (root / "results/small-partial/t1_small.md").write_text("| Method |\n")
+
+    (root / "results/plots/q.png").write_bytes(b"\x89PNG")
+    with pytest.raises(ClodsError, match=r"no entry for results/plots/q\.png"):
+        plot_pages(root)
