@@ -5,8 +5,11 @@ A recurrent predictor, one frame per step. Each frame is encoded (a 1x1 conv, th
 decoder (transposed convs) and a 1x1 readout give the next frame. A cell attends over its last `tau`
 temporal states: weights = softmax over the window of <S_prev_i, conv(S_now)> / sqrt(C*h*w), the previous
 spatial states S_prev_i scored against the current one; the attended state (the motion trend) is fused with
-the current T through a sigmoid gate, and T and S exchange information through two more gates. OpenSTL's
-LayerNorm over (C,h,w) is GroupNorm(1, C) here (the same normalisation, per-channel affine: size-agnostic).
+the current T through a sigmoid gate, and T and S exchange information through two more gates. Every cell
+convolution is followed by a LayerNorm over (C,h,w) with an elementwise affine of that shape, as in the authors'
+code (ZhengChang467/MAU, and OpenSTL's port), so a network is built for one latent size. PyTorch's default
+initialisation, as theirs. The authors' network also holds two 1x1 convolutions its forward never calls (`merge`,
+`conv_last_sr`); they are left out here.
 """
 
 from __future__ import annotations
@@ -17,20 +20,20 @@ import torch
 from torch import nn
 
 
-def _conv_norm(c_in: int, c_out: int, kernel: int) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(c_in, c_out, kernel, padding=kernel // 2), nn.GroupNorm(1, c_out))
+def _conv_norm(c_in: int, c_out: int, kernel: int, size: tuple[int, int]) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, kernel, padding=kernel // 2), nn.LayerNorm([c_out, *size]))
 
 
 class MAUCell(nn.Module):
-    """One motion-aware unit on (B,C,h,w) states with a window of `tau` previous states."""
+    """One motion-aware unit on (B,C,h,w) states of latent size `size` = (h, w) with a window of `tau` previous states."""
 
-    def __init__(self, channels: int, kernel: int, tau: int) -> None:
+    def __init__(self, channels: int, kernel: int, tau: int, size: tuple[int, int]) -> None:
         super().__init__()
         self.channels, self.tau = channels, tau
-        self.conv_t = _conv_norm(channels, 3 * channels, kernel)
-        self.conv_t_next = _conv_norm(channels, channels, kernel)
-        self.conv_s = _conv_norm(channels, 3 * channels, kernel)
-        self.conv_s_next = _conv_norm(channels, channels, kernel)
+        self.conv_t = _conv_norm(channels, 3 * channels, kernel, size)
+        self.conv_t_next = _conv_norm(channels, channels, kernel, size)
+        self.conv_s = _conv_norm(channels, 3 * channels, kernel, size)
+        self.conv_s_next = _conv_norm(channels, channels, kernel, size)
 
     def attention(self, s_now: torch.Tensor, s_prev: torch.Tensor) -> torch.Tensor:
         """(tau,B) weights, summing to one over the window: softmax_i <s_prev[i], conv(s_now)> / sqrt(C*h*w)."""
@@ -51,15 +54,17 @@ class MAUCell(nn.Module):
 
 
 class MAU(nn.Module):
-    """(B,C,3,H,W) context -> (B,C-1+future,3,H,W): the predictions of frames 1..C-1+future, one step at a time."""
+    """(B,C,3,H,W) context of H x W = `image_size` -> (B,C-1+future,3,H,W): the predictions of frames 1..C-1+future,
+    one step at a time."""
 
-    def __init__(self, hidden: int, num_layers: int, kernel: int, tau: int, downsamples: int) -> None:
+    def __init__(self, hidden: int, num_layers: int, kernel: int, tau: int, downsamples: int, image_size: tuple[int, int]) -> None:
         super().__init__()
+        size = (image_size[0] >> downsamples, image_size[1] >> downsamples)
         self.hidden, self.tau = hidden, tau
         enc: list[nn.Module] = [nn.Sequential(nn.Conv2d(3, hidden, 1), nn.LeakyReLU(0.2))]
         enc += [nn.Sequential(nn.Conv2d(hidden, hidden, 3, stride=2, padding=1), nn.LeakyReLU(0.2)) for _ in range(downsamples)]
         self.enc = nn.Sequential(*enc)
-        self.cells = nn.ModuleList(MAUCell(hidden, kernel, tau) for _ in range(num_layers))
+        self.cells = nn.ModuleList(MAUCell(hidden, kernel, tau, size) for _ in range(num_layers))
         dec: list[nn.Module] = [
             nn.Sequential(nn.ConvTranspose2d(hidden, hidden, 3, stride=2, padding=1, output_padding=1), nn.LeakyReLU(0.2)) for _ in range(downsamples - 1)
         ]
