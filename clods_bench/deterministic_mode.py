@@ -24,6 +24,7 @@ This module imports nothing numeric: it must run before those libraries load.
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import sys
@@ -31,6 +32,8 @@ from typing import Any
 
 SWITCH_ENV = "CLODS_BENCH_DETERMINISTIC"
 THREADS_ENV = "CLODS_BENCH_THREADS"
+BEFORE_PINS_ENV = "CLODS_BENCH_ENV_BEFORE_PINS"
+"""Set by `apply()`: the pinned variables' values before the pins (JSON), for child processes' `host_environ()`."""
 PINS_VERSION = 1
 """Bumped whenever the pins change: numbers made under other pins are not comparable bit for bit."""
 
@@ -42,6 +45,10 @@ _NUMPY_ABOVE_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR AVX512F AVX512CD AVX512_KNL AV
 
 _original: dict[str, str | None] = {}
 _state: dict[str, Any] = {"applied": False, "late": []}
+
+
+_PINNED_BY = {"numpy": ("NPY_DISABLE_CPU_FEATURES",), "torch": ("MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY"),
+              "numba": ("NUMBA_CPU_NAME",), "scipy": ("OPENBLAS_CORETYPE",)}
 
 
 def enabled() -> bool:
@@ -90,33 +97,40 @@ def apply() -> None:
     """Set the pins in `os.environ` (once; a no-op when the mode is off), noting any numeric library loaded before."""
     if _state["applied"] or not enabled():
         return
-    _state["late"] = [m for m in NUMERIC_MODULES if m in sys.modules]
-    for key, value in pins().items():
+    wanted = pins()
+    _state["late"] = [m for m in NUMERIC_MODULES if m in sys.modules and any(os.environ.get(k) != wanted[k] for k in _PINNED_BY[m])]
+    inherited = os.environ.get(BEFORE_PINS_ENV)  # a parent clods-bench process pinned them already: its originals
+    if inherited:
+        try:
+            _original.update({str(k): (None if v is None else str(v)) for k, v in json.loads(inherited).items()})
+        except (ValueError, AttributeError):
+            pass
+    for key, value in wanted.items():
         _original.setdefault(key, os.environ.get(key))
         os.environ[key] = value
+    os.environ[BEFORE_PINS_ENV] = json.dumps(_original, sort_keys=True)
     _state["applied"] = True
 
 
 def host_environ() -> dict[str, str]:
-    """`os.environ` as it was before `apply()`, with the mode switched off: for re-running a command on host paths."""
+    """`os.environ` as it was before the pins (this process's or a parent's), with the mode switched off: for
+    re-running a command on host paths. A pin set by hand (`numerics --export`) is removed."""
     env = dict(os.environ)
-    for key, value in _original.items():
-        if value is None:
+    for key, pinned in pins().items():
+        before = _original[key] if key in _original else (None if env.get(key) == pinned else env.get(key))
+        if before is None:
             env.pop(key, None)
         else:
-            env[key] = value
+            env[key] = before
+    env.pop(BEFORE_PINS_ENV, None)
     env[SWITCH_ENV] = "0"
     return env
-
-
-_PINNED_BY = {"numpy": ("NPY_DISABLE_CPU_FEATURES",), "torch": ("MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY"),
-              "numba": ("NUMBA_CPU_NAME",), "scipy": ("OPENBLAS_CORETYPE",)}
 
 
 def loaded_too_early() -> list[str]:
     """Numeric libraries imported before `apply()` whose pins were not in the environment already (`clods-bench
     numerics --export`): they run on the host's paths."""
-    return [m for m in _state["late"] if any(_original.get(k) != os.environ.get(k) for k in _PINNED_BY[m])]
+    return list(_state["late"])
 
 
 def cpu_flags() -> set[str] | None:

@@ -45,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("numerics", help="deterministic mode: the pinned floating-point paths, and those this process uses")
     p.add_argument("--export", action="store_true", help="print the pins as shell `export` lines (for Python code that imports numpy first)")
+    p.add_argument("--probe", action="store_true",
+                   help="also run four tiny fits (graph net, video predictor, renderer fit, extraction) and print their digests: "
+                        "two machines in deterministic mode print the same ones")  # fmt: skip
     p.set_defaults(func=cmd_numerics)
 
     p = sub.add_parser("list", help="plugins, scenes, tasks and presets")
@@ -263,6 +266,11 @@ def cmd_numerics(args: argparse.Namespace) -> int:
     if dm.enabled() and missing:
         console.print(f"this CPU lacks {', '.join(missing)}: deterministic runs stop with an error here", highlight=False)
     console.print("in use: " + ", ".join(f"{k}={v}" for k, v in effective_paths().items()), highlight=False)
+    if args.probe:
+        from clods_bench.benchmark.determinism_probe import probe
+
+        for family, got in probe().items():
+            console.print(f"probe {family}: {got['digest']} ({got['seconds']:.1f} s)", highlight=False)
     return 0
 
 

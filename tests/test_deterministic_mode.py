@@ -1,0 +1,95 @@
+"""Deterministic mode: the pins are in effect in this test session, four tiny fits (one per model family) give the
+committed bits on every x86-64 CPU with AVX2, and the mode's errors and switches say what is wrong in one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from clods_bench import deterministic_mode as dm
+from clods_bench.benchmark.cli import main
+from clods_bench.benchmark.determinism import check_numeric_paths, effective_paths
+from clods_bench.errors import ClodsError
+
+COMMITTED = json.loads((Path(__file__).parent / "benchmark" / "data" / "determinism_probe.json").read_text())
+X86_AVX2 = not dm.missing_cpu_features()
+
+
+def test_the_test_session_runs_on_the_pinned_paths() -> None:
+    """pytest loads clods_bench first (`-p clods_bench`): no numeric library escaped the pins."""
+    assert dm.enabled() and dm.loaded_too_early() == []
+    paths = effective_paths()
+    assert paths["mkl_cbwr"] == "COMPATIBLE" and paths["onednn_max_isa"] == "AVX2" and paths["torch_threads"] == 1
+    if X86_AVX2:
+        assert paths["torch_cpu_capability"] == "AVX2" and paths["numba_cpu_name"] == "haswell"
+        assert paths["numpy_dispatch_above_avx2"] == []
+
+
+@pytest.mark.skipif(not X86_AVX2, reason="the committed digests are of the pinned x86-64 AVX2 paths")
+@pytest.mark.parametrize("family", ["graph net", "video predictor", "renderer fit", "extraction"])
+def test_each_model_family_gives_the_committed_bits(family: str) -> None:
+    """The digests were made on another CPU (see the file's `made_on`); on the host's own paths they differ
+    (`CLODS_BENCH_DETERMINISTIC=0 pytest tests/test_deterministic_mode.py` fails here on an AVX-512 CPU)."""
+    from clods_bench.benchmark.determinism_probe import probe
+
+    assert probe((family,))[family]["digest"] == COMMITTED["digests"][family]
+
+
+def test_a_cpu_without_avx2_gets_one_line_and_exit_2(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2", "fma"])
+    assert main(["run", "cdg", "--sim", "constvel", "--set", f"runs_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err
+    assert "deterministic mode pins AVX2 code paths, and this CPU" in err and "lacks avx2, fma" in err and "--no-deterministic" in err
+    assert main(["list"]) == 0  # commands that compute nothing still work
+
+
+def test_numpy_imported_before_clods_bench_is_named(tmp_path: Path) -> None:
+    code = "import numpy, clods_bench\nfrom clods_bench.benchmark.determinism import check_numeric_paths\ncheck_numeric_paths()"
+    env = {k: v for k, v in os.environ.items() if k not in dm.pins()}  # a fresh process: nothing pinned beforehand
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert out.returncode != 0 and "numpy loaded before clods_bench, so deterministic mode could not pin its floating-point paths" in out.stderr
+    env.update(dm.pins())  # the variables of `clods-bench numerics --export`, set before Python starts: fine
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path).returncode == 0
+
+
+def test_no_deterministic_reruns_the_command_on_the_host_paths() -> None:
+    exe = shutil.which("clods-bench", path=str(Path(sys.executable).parent)) or "clods-bench"
+    out = subprocess.run([exe, "--no-deterministic", "numerics"], capture_output=True, text=True)
+    assert out.returncode == 0 and "mode: host paths" in out.stdout.replace("\n", " ")
+    assert "mkl_cbwr=host" in out.stdout.replace("\n", "")
+    env = dm.host_environ()  # the environment from before the pins, with the switch off
+    assert env[dm.SWITCH_ENV] == "0" and env.get("MKL_CBWR") == dm._original.get("MKL_CBWR")
+
+
+def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.MonkeyPatch) -> None:
+    from clods_bench.benchmark.clods.cache import digest
+    from clods_bench.benchmark.records import record_dir
+    from tests.conftest import tiny_config
+
+    cfg = tiny_config(Path("/tmp/x"), sim="constvel")
+    pinned = (record_dir(cfg), digest({"a": 1}))
+    monkeypatch.setenv(dm.SWITCH_ENV, "0")
+    assert record_dir(cfg) != pinned[0] and digest({"a": 1}) != pinned[1]
+    monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2"])
+    check_numeric_paths()  # host mode needs nothing of the CPU
+    monkeypatch.setenv(dm.SWITCH_ENV, "1")
+    with pytest.raises(ClodsError, match="lacks avx2"):
+        check_numeric_paths()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("qemu-x86_64") is None or not X86_AVX2, reason="needs qemu-user (apt-get install qemu-user) on an x86-64 AVX2 host")
+@pytest.mark.parametrize("cpu", ["Haswell", "EPYC-Rome"])
+def test_emulated_avx2_intel_and_amd_cpus_give_the_committed_bits(cpu: str) -> None:
+    """The same fits under QEMU's model of an AVX2-only Intel (Haswell) and AMD (EPYC Rome) CPU: MKL dispatches by
+    vendor (its AVX2 branch is not honoured on AMD), oneDNN and ATen by instruction set; the pins hold all three."""
+    code = "import clods_bench, json\nfrom clods_bench.benchmark.determinism_probe import probe\nprint(json.dumps({k: v['digest'] for k, v in probe().items()}))"
+    out = subprocess.run(["qemu-x86_64", "-cpu", cpu, sys.executable, "-c", code], capture_output=True, text=True, timeout=3000)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == COMMITTED["digests"]
