@@ -76,7 +76,7 @@ def clods_bench_simulators() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="hcmt",
-            description="HCMT-style model: mesh-transformer U-Net over bi-stride levels, contact attention with obstacles.",
+            description="HCMT (authors' processor): contact and hierarchical mesh transformers over bi-stride levels, mesh-supervised.",
             build=_build_hcmt,
             config_cls=HcmtConfig,
             learned=True,

@@ -65,7 +65,11 @@ class LearnedModel(nn.Module):
         for n, es in raw_sets.items():
             features = self.edge_normalizers[n](es.features, accumulate)
             sets[n] = EdgeSet(self.edge_encoders[n](features) if n in self.edge_encoders else features, es.senders, es.receivers)
-        x = self.processor(x, ProcessorInputs(sets, pos, topo.mesh_pos, topology_key))
+
+        def encode(name: str, raw: torch.Tensor) -> torch.Tensor:  # further edges of a set, e.g. HCMT's coarse levels
+            return self.edge_encoders[name](self.edge_normalizers[name](raw, accumulate))
+
+        x = self.processor(x, ProcessorInputs(sets, pos, topo.mesh_pos, topology_key, encode))
         return self.decoder(x)
 
     def acceleration(self, normalized: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""The processor interface shared by the learned simulators (MGN, BSMS-style, HCMT-style).
+"""The processor interface shared by the learned simulators (MGN, BSMS, HCMT, DHMP, LIP-style).
 
 All learned simulators share one encode-process-decode model and one trainer; they differ only
 in the processor that maps encoded node latents to updated node latents. A processor must be a
@@ -8,7 +8,7 @@ in the processor that maps encoded node latents to updated node latents. A proce
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import torch
 
@@ -24,13 +24,16 @@ class ProcessorInputs:
     batched as a disjoint union). `pos` (V,3) world positions at the current step and
     `mesh_pos` (V,2) rest-space positions, for processors that build coarse-level edge features.
     `topology_key` identifies the (possibly batched) static mesh topology, so a processor can
-    cache per-topology structures such as a bi-stride hierarchy.
+    cache per-topology structures such as a bi-stride hierarchy. `encode_edges(name, raw)` normalises and encodes
+    raw features (E, width) of edge set `name` with the model's own normaliser and encoder (HCMT encodes every
+    level's edges so); None where the model offers none.
     """
 
     edge_sets: dict[str, EdgeSet]
     pos: torch.Tensor
     mesh_pos: torch.Tensor
     topology_key: str
+    encode_edges: Callable[[str, torch.Tensor], torch.Tensor] | None = None
 
 
 class Processor(Protocol):

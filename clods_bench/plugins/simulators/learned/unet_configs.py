@@ -1,4 +1,4 @@
-"""Options of the BSMS, HCMT-style and DHMP simulators: the shared learned options plus their U-Net's shape.
+"""Options of the BSMS, HCMT and DHMP simulators: the shared learned options plus their U-Net's shape.
 
 Kept free of torch so the plugin registry can load them without importing a model.
 """
@@ -27,8 +27,16 @@ class BsmsConfig(LearnedConfig):
 
 @dataclass(frozen=True)
 class HcmtConfig(LearnedConfig):
-    """HCMT-style simulator: the shared model and trainer (latent 128) with a hierarchical mesh transformer (4 heads)."""
+    """HCMT's processor (contact and hierarchical mesh transformers, latent 128, 4 heads) in the shared model and trainer.
 
+    Training defaults are the authors' (yuyudeep/hcmt `run_model.py`): 2M Adam steps, the learning rate 1e-4 decayed
+    by 0.1 over 1M steps (half the run) with no floor, 1000 warm-up steps.
+    """
+
+    train_steps: int = 2_000_000
+    """Optimiser steps, warm-up included (HCMT: 2M)."""
+    lr_floor: float = 0.0
+    """Constant added to the decayed learning rate (HCMT: none)."""
     levels: int = 6
     """Coarse levels below the mesh (HCMT `l_n`)."""
     heads: int = 4
