@@ -1,7 +1,7 @@
 """MkDocs hooks of the clods-bench site: the generated pages and blocks (`clods_bench.docsgen`).
 
 - `on_files`: adds the CLI reference (from the parser), the results pages and their CSV, LaTeX and picture files
-  (from `results/`), and puts the table pages and the plugin-API pages that exist into the navigation;
+  (from `results/`), and puts the table pages into the navigation;
 - `on_page_markdown`: rewrites every `<!-- generated:NAME -->` block, so a page built from a checkout whose
   committed blocks are stale still shows the current numbers (the docs tests fail on the stale copy).
 A missing table file, a picture without its command or a stale claim stops the build with one error naming the
@@ -20,10 +20,6 @@ from clods_bench.docsgen.blocks import fill
 from clods_bench.docsgen.cli_reference import cli_reference
 from clods_bench.docsgen.results_pages import nav_entries, results_pages
 from clods_bench.errors import ClodsError
-
-OPTIONAL_PLUGIN_PAGES = {"Plugin API and its versions": "plugins/api.md", "Migrating a plugin": "plugins/migrating.md"}
-"""Pages of the plugin guide that join the navigation once they exist."""
-
 
 def _root(config: Any) -> Path:
     return Path(config.config_file_path).resolve().parent
@@ -55,11 +51,6 @@ def on_files(files: Files, config: Any) -> Files:
     if results is not None:  # `mkdocs serve` may build twice from one config: replace, never append twice
         results[:] = [item for item in results if not (isinstance(item, dict) and ("Tables" in item or "Plots" in item))]
         results += [{"Tables": tables}, {"Plots": "results/plots.md"}]
-    plugins = _section(nav, "Plugin guide")
-    if plugins is not None:
-        for title, page in OPTIONAL_PLUGIN_PAGES.items():
-            if (Path(config.docs_dir) / page).is_file() and {title: page} not in plugins:
-                plugins.append({title: page})
     return files
 
 

@@ -75,17 +75,21 @@ def claims_details(root: Path) -> str:
     return claims_body(evaluate_claims(root))
 
 
-def plugins_table(root: Path) -> str:
-    """Every installed plugin with its kind and description, as `clods-bench list` prints them (the site is built
-    where only the built-ins are installed)."""
+KINDS = ("task", "simulator", "renderer", "video_predictor", "scene")
+
+
+def plugins_table(root: Path, kinds: tuple[str, ...] = KINDS) -> str:
+    """Every installed plugin of `kinds` with its description, as `clods-bench list` prints them (the site is built
+    where only the built-ins are installed), so no page describes a plugin in other words than its code."""
     from clods_bench.benchmark.registry import default_registry
 
     reg = default_registry()
-    lines = ["| kind | name | description |", "| --- | --- | --- |"]
-    for kind in ("task", "simulator", "renderer", "video_predictor", "scene"):
+    lines = ["| kind | name | description |" if len(kinds) > 1 else "| name | description |",
+             "| --- | --- | --- |" if len(kinds) > 1 else "| --- | --- |"]  # fmt: skip
+    for kind in kinds:
         for name in reg.names(kind):
             text = " ".join(reg.get(kind, name).description.split()).replace("|", "\\|")
-            lines.append(f"| {kind.replace('_', ' ')} | `{name}` | {text} |")
+            lines.append(f"| {kind.replace('_', ' ')} | `{name}` | {text} |" if len(kinds) > 1 else f"| `{name}` | {text} |")
     return "\n".join(lines) + "\n"
 
 
@@ -111,6 +115,7 @@ GENERATORS: dict[str, Callable[[Path], str]] = {
     "task-tables": task_tables,
     "table-costs": table_costs_block,
     "plugins": plugins_table,
+    **{f"plugins-{kind}": (lambda root, kind=kind: plugins_table(root, (kind,))) for kind in KINDS},
     "presets": presets_table,
     "headline-results": headline_results,
     "claims-summary": claims_summary,

@@ -15,10 +15,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.interfaces import FitContext, check_video
-from clods_bench.errors import ClodsError
+from clods_bench.api import ClodsError, FitContext, PluginSpec, check_video, hookimpl
+
+CLODS_BENCH_API = "1.1"  # the plugin API this module is written for
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,10 @@ from typing import Any, Sequence
 
 import torch
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting import render_gaussians
+from clods_bench.api import ClodsError, PluginSpec, hookimpl
+from clods_bench.plugins.splatting import render_gaussians  # the benchmark's splatting (internal: not in clods_bench.api)
+
+CLODS_BENCH_API = "1.1"  # the plugin API this module is written for
 
 
 @dataclass(frozen=True)
