@@ -2,15 +2,23 @@
 
 LIP (Zhu et al., latent intuitive physics) represents the cloth as a point cloud and simulates it with a
 particle model; the CloDS paper adapts it to CDG and finds that without mesh topology the cloth shape collapses.
-This model is that particle dynamics in the shared learned-simulator frame: node features are the last
-velocity and the one-hot node type, edges are rebuilt at every step from the current world positions (pairs
-closer than `radius_factor` times the rest spacing, at most `max_neighbours` per node) with the relative
+This model keeps that property (particles, no mesh edge) in the shared learned-simulator frame: node features are
+the last velocity and the one-hot node type, edges are rebuilt at every step from the current world positions
+(pairs closer than `radius_factor` times the rest spacing, at most `max_neighbours` per node) with the relative
 position over the radius and its norm as features, all normalised online; `message_passing_steps` residual
 GraphNetBlocks (the interaction networks of GNS) then a decoder give the acceleration, handle nodes follow their
 prescribed positions. The trajectories' cells are used ONLY to satisfy the shared interfaces (topology cache
 keys, checkpoint mesh digests, the unused mesh-edge tensors of `Topology`); they never become graph edges and
 no mesh-space feature reaches the network. The rest positions (`mesh_pos`) set one number per mesh: the
 length unit of the radius.
+
+It is not the authors' network. LIP's code (github.com/xherdan76/LIP at 2f08a708f19d690ef22df2c6899d277e5dcf58b5,
+`models/transmodel.py`, `models/encoder.py`, `trainer/trainer_e2e_lip.py`) simulates with continuous convolutions
+(Ummenhofer et al. 2020, open3d's `ContinuousConv`: 4x4x4 kernels, ball-to-cube volume-preserving mapping, poly6
+window, layers of 32, 64, 64 and 3 channels with dense bypasses), integrates gravity explicitly and adds a learned
+position correction, and conditions every particle on a latent drawn from a GRU prior over a continuous-convolution
+encoder, fitted to a latent inferred through a neural renderer. Here: message passing over a radius graph, an
+acceleration output, no latent.
 """
 
 from __future__ import annotations
