@@ -170,14 +170,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_seed_spread)
 
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer", "video"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer", "video", "determinism"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
                         "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
                         "store: frame store bytes and read speed vs raw .npy; "
                         "infer: ms per frame of CloDS (learned step + SMGS render of every view) vs the traditional pipeline "
                         "(physics solver step + ground-truth rasterizer) at --preset size; "
-                        "video: training-step time of each video predictor at --preset size and its preset training time")  # fmt: skip
+                        "video: training-step time of each video predictor at --preset size and its preset training time; "
+                        "determinism: deterministic mode's cost, MGN and CPU splatting against the host's own paths")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
                    "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer, video: config override, e.g. data.root=DIR or video_config.tau.hid_s=16; sim: sim_config.<name>.<field>=VALUE")
@@ -649,6 +650,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
+    elif args.what == "determinism":
+        from clods_bench.benchmark.determinism_bench import bench_determinism
+
+        bench_determinism(console, repeats=args.repeats)
     elif args.what == "stage2":
         from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
 

@@ -150,21 +150,23 @@ def test_first_seeds_keeps_the_first_seeds_and_lifts_the_two_seed_rule(tmp_path:
         build_configs(plan, "ci", default_registry(), _overrides(tiny_root, tmp_path), first_seeds=0)
 
 
-def test_cli_check_on_the_first_seed_compares_means_only(tmp_path: Path, tiny_root: Path) -> None:
+def test_cli_check_on_the_first_seed_compares_with_the_first_seed_tables(tmp_path: Path, tiny_root: Path) -> None:
     plan = _plan(tmp_path)
     sets = [arg for o in _overrides(tiny_root, tmp_path / "runs") for arg in ("--set", o)]
     committed = tmp_path / "committed"
     assert main(["reproduce", "--plan", str(plan), "--out", str(committed), *sets]) == 0
-    (committed / "tolerance.yaml").write_text("default: {rel: 1.0e-6, abs: 1.0e-9}\nexclude: ['*_ms_per_*', '*seconds*']\n")
+    (committed / "tolerance.yaml").write_text("default: {rel: 0.0, abs: 0.0}\nexclude: ['*_ms_per_*', '*seconds*']\n")
     table = pd.read_csv(committed / "t_cdg.csv")
-    table.loc[0, "viewed/interp/d_avg/std"] += 0.5  # a std the single-seed run cannot reproduce: not compared
+    table.loc[0, "viewed/interp/d_avg/mean"] *= 1.5  # the two-seed table: a first-seed check does not read it
     table.to_csv(committed / "t_cdg.csv", index=False)
+    assert set(pd.read_csv(committed / "first_seed" / "t_cdg.csv")["seeds"]) == {1}
     fresh = tmp_path / "fresh"
     assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--first-seeds", "1", "--check", str(committed), *sets]) == 0
     assert set(pd.read_csv(fresh / "t_cdg.csv")["seeds"]) == {1}
     assert json.loads((fresh / "manifest.json").read_text())["first_seeds"] == 1
-    table.loc[0, "viewed/interp/d_avg/mean"] *= 1.01  # a mean still is
-    table.to_csv(committed / "t_cdg.csv", index=False)
+    first = pd.read_csv(committed / "first_seed" / "t_cdg.csv")
+    first.loc[0, "viewed/interp/d_avg/mean"] = np.nextafter(first.loc[0, "viewed/interp/d_avg/mean"], 1.0)  # one ulp in the first seed's
+    first.to_csv(committed / "first_seed" / "t_cdg.csv", index=False)
     assert main(["reproduce", "--plan", str(plan), "--out", str(fresh), "--first-seeds", "1", "--check", str(committed), *sets]) == 1
 
 
