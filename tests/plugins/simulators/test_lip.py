@@ -261,3 +261,40 @@ def test_plan_row_is_the_finetune_pipeline_without_the_edge_loss() -> None:
     assert row.sim_config["lip"]["radius_factor"] == 1.8  # the ci preset's size reaches the plugin
     assert config_identity(rows[("geometry_aware", "CloDS")]) == config_identity(rows[("table2_cdg", "CloDS")])
     assert not any(label.startswith("LIP") for table, label in rows if table == "table2_cdg")
+
+
+# --- structure pinned at the ci preset's widths --------------------------------------------------------------
+
+CI = dict(latent_size=64, message_passing_steps=4, radius_factor=1.8, max_neighbours=12)  # presets/ci.yaml
+
+
+def test_parameter_counts_at_ci_widths() -> None:
+    latent, hidden, steps = 64, 2, 4
+    mlp = lambda i, o, ln=True: i * latent + latent + (hidden - 1) * (latent * latent + latent) + latent * o + o + (2 * o if ln else 0)  # noqa: E731
+    frame = mlp(12, latent) + mlp(4, latent) + mlp(latent, 3, ln=False)  # node and radius-edge encoders, decoder
+    block = mlp(3 * latent, latent) + mlp(2 * latent, latent)  # edge function on [sender, receiver, edge], node function
+    model = build_lip(LipConfig(**CI), SimpleNamespace(scene=PINNED)).build_model(0)
+    assert sum(p.numel() for p in model.parameters()) == frame + steps * block == 176_579
+
+
+# A fixed-seed float64 output of the ci-width model (weights from seed 0, normalisers fed once): a refactor that
+# changes the function moves these by far more than the ~1e-15 float64 differences between CPUs.
+EXPECTED = {"norm": 4.035362526100458, "first": [-0.003209615196198841, 0.031454225182943905, -0.5539149398542837]}
+
+
+def test_fixed_seed_float64_output_is_the_committed_one() -> None:
+    import dataclasses
+
+    model = build_lip(LipConfig(**CI), SimpleNamespace(scene=PINNED)).build_model(0).double()
+    mesh = make_flag_mesh(9, 5, length=1.0, height=0.5)
+    topo = build_topology(mesh.cells, mesh.mesh_pos, mesh.node_type)
+    topo = dataclasses.replace(topo, node_type_onehot=topo.node_type_onehot.double(), rest_spacing=topo.rest_spacing.double())
+    rng = np.random.default_rng(0)
+    pos = torch.as_tensor(mesh.rest_pos + rng.normal(0.0, 0.02, mesh.rest_pos.shape))
+    prev = pos - torch.as_tensor(rng.normal(0.0, 0.01, mesh.rest_pos.shape))
+    with torch.no_grad():
+        model(topo, "k", pos, prev, accumulate=True)
+        out = model(topo, "k", pos, prev)
+    got = {"norm": float(torch.linalg.vector_norm(out)), "first": out[mesh.rest_pos.shape[0] - 1].tolist()}
+    assert got["norm"] == pytest.approx(EXPECTED["norm"], rel=1e-9)
+    np.testing.assert_allclose(got["first"], EXPECTED["first"], rtol=0, atol=1e-9 * EXPECTED["norm"])
