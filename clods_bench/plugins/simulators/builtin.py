@@ -69,7 +69,7 @@ def clods_bench_simulators() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="bsms",
-            description="BSMS-GNN-style model: message-passing U-Net over bi-stride pooled levels of the mesh, mesh-supervised.",
+            description="BSMS-GNN variant: the authors' bi-stride message-passing U-Net (same-weights match to their code) in MGN's cloth features, loss and training, mesh-supervised.",
             build=_build_bsms,
             config_cls=BsmsConfig,
             learned=True,
@@ -83,7 +83,7 @@ def clods_bench_simulators() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="dhmp",
-            description="DHMP-style model: anisotropic message-passing U-Net over levels whose nodes are selected per input (Gumbel-softmax).",
+            description="DHMP variant: the authors' anisotropic U-Net over levels selected per input (EvoMesh code, same-weights match) in MGN's cloth features, loss and training.",
             build=_build_dhmp,
             config_cls=DhmpConfig,
             learned=True,

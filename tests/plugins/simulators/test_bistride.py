@@ -48,6 +48,7 @@ def components(nb: list[set[int]]) -> list[list[int]]:
 def brute_kept(nb: list[set[int]], pos: np.ndarray | None, rule: str) -> list[int]:
     """Per component: the seed (BSMS: first node nearest the centroid; EvoMesh: first of least summed hops), its
     BFS parity sets, the smaller kept (even on ties); EvoMesh tops it up with every k-th removed node by depth."""
+    # (one component's ascending even/odd lists, as the authors' sets are filled)
     kept = []
     for comp in components(nb):
         if rule == "nearest_centroid":
@@ -61,6 +62,8 @@ def brute_kept(nb: list[set[int]], pos: np.ndarray | None, rule: str) -> list[in
         keep, removed = (even, odd) if len(even) <= len(odd) or not odd else (odd, even)
         delta = len(removed) - len(keep)
         if rule == "min_average" and delta > 0:
+            index = {k: i for i, k in enumerate(comp)}  # the authors' list(set) order of the component's own numbers
+            removed = [comp[i] for i in list(set(index[k] for k in removed))]
             order = np.argsort(np.array([depth[i] for i in removed], dtype=np.float64))
             keep = keep + [removed[k] for k in order[:: len(removed) // delta + 1]]
         kept += keep

@@ -13,8 +13,9 @@ kept nodes over zeros and sends them back along the same edges with the same wei
 EvoMesh (`src/helpers_bistride.py`, the `MinAve` rule its flag data uses) seeds each component at the node of least
 summed hop distance to the rest of it (the first on a tie) and, when the kept parity set is smaller than the
 removed one by delta > 0, also keeps every (n_removed // delta + 1)-th removed node in order of hop distance
-(numpy's default argsort over the removed nodes; the authors' code lists them in Python-set order, which for
-these index sets is ascending order, as the same-weights study checks).
+(numpy's default argsort of their depths, the removed nodes listed as the authors' code lists them: in the
+iteration order of a Python set of their indices filled in ascending order, which decides ties; the indices are
+numbered within the component, so a mesh in a batch gets the levels it gets alone).
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ def bistride_selection(adj: sp.csr_matrix, pos: np.ndarray | None, rule: SeedRul
         keep, removed = (even, odd) if (len(even) <= len(odd) or len(odd) == 0) else (odd, even)
         delta = len(removed) - len(keep)
         if rule == "min_average" and delta > 0:
+            local = list(set(np.searchsorted(members, removed).tolist()))  # the code's order: a set's, filled ascending,
+            removed = members[np.asarray(local, dtype=np.int64)]  # of the component's own node numbers (a batch = each mesh alone)
             order = np.argsort(depth[removed].astype(np.float64))
             keep = np.concatenate([keep, removed[order[:: len(removed) // delta + 1]]])
         kept.append(keep)

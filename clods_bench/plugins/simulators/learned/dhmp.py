@@ -144,7 +144,7 @@ class DhmpProcessor(nn.Module):
                     gumbel_noise(tuple(scores.shape), generator, scores.device, scores.dtype)
                 kept, gate = self._select(scores, component, tau, generator)
                 x = x.index_select(0, kept) * gate.unsqueeze(1)
-                pos = pos.index_select(0, kept) * gate.detach().unsqueeze(1)  # the code gates positions too (1 up to rounding)
+                pos = pos.index_select(0, kept) * gate.unsqueeze(1)  # the code gates positions too: 1, with the gate's gradient
                 s, r = two_hop_edges_among(s, r, n, kept)
             kept_at.append(kept)
             component, fine = component.index_select(0, kept), fine.index_select(0, kept)
