@@ -220,14 +220,15 @@ def test_contact_block_only_with_obstacles():
 
 def test_structure_at_ci_widths_is_pinned():
     """Parameter counts (by formula) and fixed-seed float64 outputs (committed): the ci preset's shape (one learned
-    level at the mesh, keep ratio 0.5) and the small preset's (2 bi-stride and 2 learned levels, the authors' rule)."""
+    level at the mesh), the small preset's (2 bi-stride and 2 learned levels) and the ci shape with a keep ratio."""
     def block(scores: bool) -> int:  # WeightedGmp: edge MLP on (fibre 7 + 2 latents), weight MLP, node MLP, [score MLP]
         n = mlp_parameters(7 + 128, 64, 2, 64, False) + mlp_parameters(64, 64, 2, 1, False) + mlp_parameters(128, 64, 2, 64, False)
         return n + (mlp_parameters(128, 64, 2, 2, False) if scores else 0)
 
-    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, keep_ratio=0.5), SimpleNamespace(scene=PINNED)))
+    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0), SimpleNamespace(scene=PINNED)))
     assert count == shared_parameters(64, 2, encoded_edges=False) + block(True) + 2 * block(False) == 156296
-    assert_close(value, 12.5817759494111)
+    assert_close(value, -39.186881796086055)
+    assert_close(fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, keep_ratio=0.5), SimpleNamespace(scene=PINNED)))[1], 12.5817759494111)
     count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=4, fixed_levels=2), SimpleNamespace(scene=PINNED)))
     assert count == shared_parameters(64, 2, encoded_edges=False) + 2 * block(True) + 7 * block(False) == 420752
     assert_close(value, -28.750969251279837)
