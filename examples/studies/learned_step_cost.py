@@ -11,7 +11,6 @@ Run it on two checkouts (PYTHONPATH) to compare a change's cost.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import statistics
 import time
 from pathlib import Path
@@ -28,12 +27,23 @@ from clods_bench.datasets.types import Trajectory
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 
 
+def _number(text: str) -> int | float | str:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("preset")
     parser.add_argument("sims", nargs="+")
     parser.add_argument("--steps", type=int, default=60, help="timed optimiser steps per round")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SIM.FIELD=VALUE",
+                        help="override one option of a simulator's preset config, e.g. dhmp.latent_size=56")
     args = parser.parse_args()
     torch.set_num_threads(1)
     cfg = load_config(args.preset, None, [])
@@ -41,11 +51,17 @@ def main() -> None:
     mesh = make_flag_mesh(nx, ny)
     frames = ClothSolver(mesh, SolverParams(), 0.02).simulate(mesh.rest_pos, np.zeros_like(mesh.rest_pos), 12)
     traj = Trajectory(mesh.cells, mesh.mesh_pos, mesh.node_type, frames.astype(np.float32), 0.02)
+    overrides: dict[str, dict] = {}
+    for item in args.overrides:
+        key, value = item.split("=", 1)
+        name, field = key.split(".", 1)
+        overrides.setdefault(name, {})[field] = _number(value)
     registry = default_registry()
     trainers = {}
     for name in args.sims:
         spec = registry.get("simulator", name)
-        config = spec.make_config({**cfg.sim_config.get(name, {}), "warmup_steps": 0, "num_threads": 1}, where=f"sim_config.{name}")
+        options = {**cfg.sim_config.get(name, {}), **overrides.get(name, {}), "warmup_steps": 0, "num_threads": 1}
+        config = spec.make_config(options, where=f"sim_config.{name}")
         sim = spec.build(config, SimpleNamespace(scene=SimpleNamespace(name="flag", has_obstacles=False, has_handles=True), seed=0, work_dir=Path("."), progress=False))
         trainer = Trainer(sim.build_model(0), config, TrainingData([traj], sim.cache, 1), seed=0)
         for _ in range(5):
