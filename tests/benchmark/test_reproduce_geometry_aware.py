@@ -10,7 +10,7 @@ from clods_bench.benchmark.reproduce import build_configs, config_identity, defa
 def test_geometry_aware_rows_resolve_to_the_intended_configs() -> None:
     runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
     rows = {(run.table, run.label): cfg for run, cfg in runs}
-    clods, cs = rows[("geometry_aware", "CloDS")], rows[("geometry_aware", "CS")]
+    clods, cs = rows[("geometry_aware", "CloDS")], rows[("geometry_aware", "CS-style")]
     assert config_identity(clods) == config_identity(rows[("table2_cdg", "CloDS")])  # shared: no extra CI cost
     assert (cs.sim, cs.renderer, cs.train_subset) == ("mgn", "games", "all")
     opts = clods_config(cs)

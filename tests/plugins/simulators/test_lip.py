@@ -255,7 +255,7 @@ def test_plan_row_is_the_finetune_pipeline_without_the_edge_loss() -> None:
     from clods_bench.benchmark.reproduce import build_configs, config_identity, default_plan_path, load_plan
 
     rows = {(run.table, run.label): cfg for run, cfg in build_configs(load_plan(default_plan_path()), "ci", default_registry())}
-    row = rows[("geometry_aware", "LIP")]
+    row = rows[("geometry_aware", "LIP-style")]
     assert (row.sim, row.renderer) == ("lip", "smgs")
     assert row.task_config["clods"]["variant"] == "finetune" and float(row.task_config["clods"]["gamma"]) == 0.0
     assert row.sim_config["lip"]["radius_factor"] == 1.8  # the ci preset's size reaches the plugin
