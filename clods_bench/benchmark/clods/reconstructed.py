@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import time
 from typing import Any, Sequence
 
@@ -44,7 +45,9 @@ def stage0_config(opts: ClodsConfig, seed: int) -> Stage0Config:
 
 def stage0_mesh(ctx: TaskContext, opts: ClodsConfig, cfg: Stage0Config, index: int, images: np.ndarray, cameras: Sequence[Camera],
                 num_nodes: int) -> tuple[ClothMesh, dict[str, float]]:  # fmt: skip
-    """Stage 0 of trajectory `index` (cached next to the stage 1-2 caches, keyed by the images, cameras and options)."""
+    """Stage 0 of trajectory `index` (cached next to the stage 1-2 caches, keyed by the images, cameras and options:
+    the initial-mesh table and the rows learned from a reconstructed mesh share it); its statistics, the cost of a
+    cached mesh as `stage0_cost_seconds`."""
     pixels = hashlib.sha256(np.ascontiguousarray(images).tobytes()).hexdigest()[:16]
     key = digest({"stage0": dataclasses.asdict(cfg), "images": pixels, "cameras": [c.to_dict() for c in cameras], "num_nodes": int(num_nodes)})
     path = cache_root(ctx, opts) / f"stage0-{key}.npz"
@@ -53,12 +56,14 @@ def stage0_mesh(ctx: TaskContext, opts: ClodsConfig, cfg: Stage0Config, index: i
             try:
                 with np.load(path) as z:
                     mesh = ClothMesh(z["cells"], z["mesh_pos"], z["node_type"], z["rest_pos"])
-                    return mesh, {"stage0_seconds": 0.0, "stage0_cost_seconds": float(z["seconds"])}
+                    saved = json.loads(str(z["stats"])) if "stats" in z.files else {}
+                    return mesh, {**saved, "stage0_seconds": 0.0, "stage0_cost_seconds": float(z["seconds"])}
             except (OSError, KeyError, ValueError) as exc:
                 raise ClodsError(f"unreadable stage-0 cache file ({type(exc).__name__}: {exc})", where=str(path), hint="delete it") from None
         mesh, stats = reconstruct_initial_mesh(images, cameras, cfg, num_nodes)
-        write_npz(path, cells=mesh.cells, mesh_pos=mesh.mesh_pos, node_type=mesh.node_type, rest_pos=mesh.rest_pos, seconds=np.float64(stats["stage0_seconds"]))
-    return mesh, {"stage0_seconds": stats["stage0_seconds"], "stage0_cost_seconds": stats["stage0_seconds"]}
+        write_npz(path, cells=mesh.cells, mesh_pos=mesh.mesh_pos, node_type=mesh.node_type, rest_pos=mesh.rest_pos,
+                  seconds=np.float64(stats["stage0_seconds"]), stats=np.array(json.dumps(stats, sort_keys=True)))  # fmt: skip
+    return mesh, {**stats, "stage0_cost_seconds": stats["stage0_seconds"]}
 
 
 SIDE_BAND = 1.5  # edge lengths: boundary nodes this close to an extreme of the material box make a candidate side
