@@ -40,8 +40,21 @@ PINS_VERSION = 1
 NUMERIC_MODULES = ("numpy", "torch", "numba", "scipy")
 _FALSE = ("0", "false", "no", "off")
 
-# numpy's dispatch targets above AVX2 (numpy 2.x names first, then numpy 1.26's); unknown names are ignored by numpy.
-_NUMPY_ABOVE_AVX2 = "X86_V4 AVX512_ICL AVX512_SPR AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL"
+# numpy's dispatch targets above AVX2: numpy 2.4 groups them as X86_V4 and its successors; earlier releases name each
+# AVX-512 set (a name numpy does not dispatch to costs an ImportWarning, so only the installed release's are given).
+_NUMPY_ABOVE_AVX2 = {"new": "X86_V4 AVX512_ICL AVX512_SPR",
+                     "old": "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"}  # fmt: skip
+
+
+def _numpy_above_avx2() -> str:
+    """NPY_DISABLE_CPU_FEATURES for the installed numpy, read from its metadata (numpy itself must not load yet)."""
+    try:
+        from importlib.metadata import version
+
+        major, minor = (int(x) for x in version("numpy").split(".")[:2])
+    except Exception:  # noqa: BLE001 - no numpy metadata: the newer names
+        return _NUMPY_ABOVE_AVX2["new"]
+    return _NUMPY_ABOVE_AVX2["new" if (major, minor) >= (2, 4) else "old"]
 
 _original: dict[str, str | None] = {}
 _state: dict[str, Any] = {"applied": False, "late": []}
@@ -74,7 +87,7 @@ def pins(n_threads: int | None = None) -> dict[str, str]:
         "DNNL_MAX_CPU_ISA": "AVX2",
         "ATEN_CPU_CAPABILITY": "avx2",
         "NUMBA_CPU_NAME": "haswell",
-        "NPY_DISABLE_CPU_FEATURES": _NUMPY_ABOVE_AVX2,
+        "NPY_DISABLE_CPU_FEATURES": _numpy_above_avx2(),
         "OMP_NUM_THREADS": n,
         "MKL_NUM_THREADS": n,
         "OPENBLAS_NUM_THREADS": n,

@@ -197,7 +197,9 @@ def test_handle_motion_that_jumps_or_has_the_wrong_shape_is_named():
 
 
 def test_a_cloth_that_is_not_a_cloth_is_named():
-    with pytest.raises(ClodsError, match="cloth is a str"):
-        SceneSpec("old", "positional kind", "flag", QUIET)  # type: ignore[arg-type]
+    with pytest.raises(ClodsError, match="cloth is a int"):
+        SceneSpec("old", "not a cloth", 42, QUIET)  # type: ignore[arg-type]
+    with pytest.warns(DeprecationWarning, match="write SceneSpec\\(..., cloth=FlagCloth"):  # the pre-0.2 positional kind
+        assert isinstance(SceneSpec("old", "positional kind", "flag", QUIET).cloth, FlagCloth)  # type: ignore[arg-type]
     with pytest.raises(ClodsError, match="scene mine: cloth: unknown resolution 'huge'"):
         scene_of(FlagCloth()).build_mesh("huge")
