@@ -1,95 +1,90 @@
-"""The MMVP network (Zhong et al. ICCV 2023, "MMVP: Motion-Matrix-based Video Prediction"): appearance and
-motion kept apart.
+"""The MMVP network (Zhong et al. ICCV 2023, "MMVP: Motion-Matrix-based Video Prediction"), as the authors' code
+builds it with `--filter_block --res_cat_img --scale_in_use 3 --use_direct_predictor` (OpenSTL's MMVP likewise).
 
-A per-frame CNN encoder (SimVP's ConvSC stack) gives appearance features (B,c,h,w); a small conv head projects
-them to motion features, and the motion matrix of two consecutive frames is the (hw x hw) matrix of cosine
-similarities between the motion features of frame t (rows, source positions) and of frame t+1 (columns,
-target positions). A matrix predictor reads each source row of the C-1 past matrices as a C-1 channel h x w
-image over target positions and outputs C rows: the logits of the matrices from the last observed frame to
-each of the C future frames. A future feature map is their composition with the last frame's appearance
-features: every target position takes the softmax-over-sources weighted mean of the source features. The
-decoder (transposed ConvSC stack, 1x1 readout) renders it, and an enhancer refines the result together with
-the last image composed by the same matrix (MMVP's `res_cat_img`: the image pixel-unshuffled to the matrix
-resolution, composed, shuffled back).
+Per frame: pixel-unshuffle by 2, a conv and RRDBs, then three residual downsampling levels (factors `downsample`,
+channels 2n, 4n, 8n). Two filter blocks (three conv-BN-LeakyReLU each) turn the last two levels into motion
+features (n and 2n channels) whose consecutive-frame cosine similarities are the motion matrices at two scales
+(8x8 and 4x4 positions for a 64 px frame with the default factors). The matrix predictor reads the fine scale's
+observed matrices and predicts the F future ones; the coarse scale's future matrices are the fine logits resized.
+Every matrix is softmaxed over all its entries, and each future frame's features at the three used levels are
+composed from all P observed frames through the chained matrices (the first level pixel-unshuffled to the fine
+grid and back). A U-Net decoder (transposed convs with skips, RRDBs, 1x1 readout, pixel shuffle) renders them;
+the observed images composed the same way (unshuffled to the fine grid) join the rendered frame in the enhancer
+(a conv, RRDBs and a 1x1 readout at half the width), whose output is the prediction.
+
+Extra frames after the first P (the training targets, which MMVP's training passes in too) are encoded and
+filtered but not composed: they reach the output only through the filter blocks' BatchNorm batch statistics.
+Frames are shifted by -`pixel_offset` on the way in and back on the way out (MMVP trains on [-0.5, 0.5]).
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
+from torch.nn import functional as F
 
-from clods_bench.plugins.video.simvp_model import ConvSC, strides
-
-
-def motion_matrix(prev: torch.Tensor, nxt: torch.Tensor) -> torch.Tensor:
-    """(B,hw,hw) cosine similarities between the features (B,c,h,w) at each position of `prev` (rows) and of `nxt` (columns)."""
-    a = torch.nn.functional.normalize(prev.flatten(2), dim=1, eps=1e-6)
-    b = torch.nn.functional.normalize(nxt.flatten(2), dim=1, eps=1e-6)
-    return a.transpose(1, 2) @ b
+from clods_bench.plugins.video.mmvp_blocks import RRDB, ConvBNAct, DownBlock, UpBlock
+from clods_bench.plugins.video.mmvp_matrices import compose_chained, global_softmax, resize_matrices, similarity_matrices
+from clods_bench.plugins.video.mmvp_predictor import MatrixPredictor
 
 
-def compose(logits: torch.Tensor, feats: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
-    """(B,c,h,w) future features: at each target position (column of `logits`, (B,hw,hw)) the mean of the source
-    features (B,c,h,w) weighted by the softmax over sources (rows) of logits/temperature."""
-    b, c, h, w = feats.shape
-    weights = torch.softmax(logits / temperature, dim=1)  # (B, source, target)
-    return (feats.flatten(2) @ weights).reshape(b, c, h, w)
-
-
-class MatrixPredictor(nn.Module):
-    """(B,K,hw,hw) past motion matrices -> (B,F,hw,hw) logits of the F future ones, a conv net over each source row's h x w map."""
-
-    def __init__(self, past: int, future: int, hidden: int) -> None:
-        super().__init__()
-        self.net = nn.Sequential(
-            nn.Conv2d(past, hidden, 3, padding=1),
-            nn.LeakyReLU(0.2),
-            nn.Conv2d(hidden, hidden, 3, padding=1),
-            nn.LeakyReLU(0.2),
-            nn.Conv2d(hidden, future, 3, padding=1),
-        )
-
-    def forward(self, matrices: torch.Tensor, h: int, w: int) -> torch.Tensor:
-        b, k, hw, _ = matrices.shape
-        rows = matrices.permute(0, 2, 1, 3).reshape(b * hw, k, h, w)
-        out = self.net(rows)
-        return out.reshape(b, hw, -1, hw).permute(0, 2, 1, 3)
+def total_factor(downsample: tuple[int, ...]) -> int:
+    """Image sides must be divisible by this: 2 (the pixel unshuffle) times every level's factor."""
+    return 2 * math.prod(downsample)
 
 
 class MMVP(nn.Module):
-    """(B,C,3,H,W) frames in [0,1] -> (B,C,3,H,W): the next C frames."""
+    """(B,T>=P,C,H,W) frames -> (B,P,C,H,W): the P frames after the first P (P = `frames`; H and W divisible by
+    `total_factor(downsample)`)."""
 
-    def __init__(self, frames: int, hid_s: int, motion_channels: int, predictor_hidden: int, enc_layers: int) -> None:
+    def __init__(
+        self, frames: int, channels: int = 16, predictor_channels: int = 8, downsample: tuple[int, int, int] = (2, 2, 2),
+        encoder_blocks: int = 2, decoder_blocks: int = 2, enhancer_blocks: int = 2, image_channels: int = 3, pixel_offset: float = 0.5,
+    ) -> None:  # fmt: skip
         super().__init__()
-        st = strides(enc_layers)
-        self.factor = 2 ** sum(s == 2 for s in st)
-        self.enc = nn.Sequential(*(ConvSC(3 if i == 0 else hid_s, hid_s, s) for i, s in enumerate(st)))
-        self.motion = nn.Sequential(
-            ConvSC(hid_s, motion_channels, 1), ConvSC(motion_channels, motion_channels, 1), nn.Conv2d(motion_channels, motion_channels, 3, padding=1)
-        )
-        self.predictor = MatrixPredictor(frames - 1, frames, predictor_hidden)
-        self.dec = nn.Sequential(*(ConvSC(hid_s, hid_s, s, transpose=True) for s in reversed(st)), nn.Conv2d(hid_s, 3, 1))
-        self.enhancer = nn.Sequential(nn.Conv2d(6, hid_s, 3, padding=1), nn.LeakyReLU(0.2), nn.Conv2d(hid_s, 3, 3, padding=1))
+        n, f, c4 = channels, downsample, 4 * image_channels
+        self.frames, self.downsample, self.pixel_offset = frames, tuple(downsample), pixel_offset
+        self.stem = nn.Sequential(nn.Conv2d(c4, n, 3, padding=1), *(RRDB(n) for _ in range(encoder_blocks)))
+        self.down = nn.ModuleList(DownBlock(n << i, n << (i + 1), f[i]) for i in range(3))
+        self.filter_fine = nn.Sequential(ConvBNAct(4 * n, n), ConvBNAct(n, n), ConvBNAct(n, n))
+        self.filter_coarse = nn.Sequential(ConvBNAct(8 * n, 2 * n), ConvBNAct(2 * n, 2 * n), ConvBNAct(2 * n, 2 * n))
+        self.predictor = MatrixPredictor(frames - 1, frames, predictor_channels)
+        self.up = nn.ModuleList([UpBlock(8 * n, 4 * n, f[2], True), UpBlock(4 * n, 2 * n, f[1], True), UpBlock(2 * n, n, f[0], False)])
+        self.dec = nn.Sequential(*(RRDB(n) for _ in range(decoder_blocks)), nn.Conv2d(n, c4, 1))
+        e = n // 2
+        self.enhancer = nn.Sequential(nn.Conv2d(2 * image_channels, e, 3, padding=1), *(RRDB(e) for _ in range(enhancer_blocks)), nn.Conv2d(e, image_channels, 1))
 
-    def matrices(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Appearance features of the last frame (B,c,h,w) and the C-1 past motion matrices (B,C-1,hw,hw)."""
-        b, t, c, hh, ww = x.shape
-        feats = self.enc(x.reshape(b * t, c, hh, ww))
-        _, cf, h, w = feats.shape
-        motion = self.motion(feats).reshape(b, t, -1, h, w)
-        past = torch.stack([motion_matrix(motion[:, k], motion[:, k + 1]) for k in range(t - 1)], dim=1)
-        return feats.reshape(b, t, cf, h, w)[:, -1], past
+    def future_matrices(self, fine: torch.Tensor, coarse: torch.Tensor) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """Softmaxed (observed, predicted) matrices at the fine and coarse scales from the motion features (B,T,c,h,w)."""
+        p = self.frames
+        sims = [similarity_matrices(m[:, :p]) for m in (fine, coarse)]
+        grids = (fine.shape[-2], fine.shape[-1]), (coarse.shape[-2], coarse.shape[-1])
+        logits = self.predictor(sims[0], grids[0])
+        pred = [logits, resize_matrices(logits, *grids)]
+        return [global_softmax(s) for s in sims], [global_softmax(m) for m in pred]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, t, c, hh, ww = x.shape
-        last, past = self.matrices(x)
-        h, w = last.shape[-2:]
-        logits = self.predictor(past, h, w)  # (B,F,hw,hw)
-        f = logits.shape[1]
-        flat = logits.reshape(b * f, h * w, h * w)
-        feats = compose(flat, last.repeat_interleave(f, dim=0))
-        pixels = torch.nn.functional.pixel_unshuffle(x[:, -1], self.factor).repeat_interleave(f, dim=0)
-        moved = torch.nn.functional.pixel_shuffle(compose(flat, pixels), self.factor)
-        decoded = self.dec(feats)
-        out = decoded + self.enhancer(torch.cat([decoded, moved], dim=1))
-        return out.reshape(b, f, c, hh, ww)
+        p, f = self.frames, self.downsample
+        img = F.pixel_unshuffle((x - self.pixel_offset).reshape(b * t, c, hh, ww), 2)
+        level0 = self.down[0](self.stem(img))
+        level1 = self.down[1](level0)
+        level2 = self.down[2](level1)
+        fine, coarse = self.filter_fine(level1), self.filter_coarse(level2)
+        past, pred = self.future_matrices(fine.reshape(b, t, *fine.shape[1:]), coarse.reshape(b, t, *coarse.shape[1:]))
+
+        def composed(feats: torch.Tensor, scale: int, unshuffle: int = 1) -> torch.Tensor:
+            """(B*P,...) future features of one level: unshuffled to the scale's grid, composed, shuffled back."""
+            v = F.pixel_unshuffle(feats, unshuffle) if unshuffle > 1 else feats
+            v = v.reshape(b, t, *v.shape[1:])[:, :p]
+            out = compose_chained(v, past[scale], pred[scale]).flatten(0, 1)
+            return F.pixel_shuffle(out, unshuffle) if unshuffle > 1 else out
+
+        y = self.up[0](composed(level2, 1), composed(level1, 0))
+        y = self.up[1](y, composed(level0, 0, f[1]))
+        y = F.pixel_shuffle(self.dec(self.up[2](y)), 2)
+        moved = F.pixel_shuffle(composed(img, 0, f[0] * f[1]), 2)
+        out = self.enhancer(torch.cat([y, moved], dim=1))
+        return out.reshape(b, p, c, hh, ww) + self.pixel_offset

@@ -1,40 +1,84 @@
-"""MMVP: the motion matrix of a feature map shifted by one pixel recovers the shift, and composing with it moves
-the features; the matrix predictor and the model keep their shapes."""
+"""The MMVP network keeps its structure: parameter count at the ci preset's widths, one fixed-seed float64 output
+(proven equal to the authors' code with the same weights by examples/studies/mmvp_same_weights.py, which wrote
+results/studies/mmvp_same_weights/), frames after the first P change nothing in eval mode, and bad options are
+clear errors."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from clods_bench.plugins.video.mmvp_model import MMVP, MatrixPredictor, compose, motion_matrix
+from clods_bench.benchmark.config import load_config
+from clods_bench.errors import ClodsError
+from clods_bench.plugins.video.mmvp import MmvpConfig, MmvpPredictor
+from clods_bench.plugins.video.mmvp_model import MMVP
+from clods_bench.plugins.video.mmvp_predictor import MatrixPredictor
+
+CI_PARAMETERS = 151_381
+"""Parameters of MMVP at the ci preset's widths (context 5, channels 8, predictor 4, one RRDB per place)."""
+CI_OUTPUT = {"sum": 14994.323825416699, "sum_sq": 9175.218534068514, "probe": 0.6047341494767355}
+"""Eval-mode prediction of the seed-0 ci-width network (float64) from the seed-1 frames below."""
+CI_TRAIN_OUTPUT = {"sum": 14991.029439254646, "sum_sq": 9173.328650054726, "probe": 0.6042921706239193}
+"""The same network in train mode (BatchNorm batch statistics) from the whole 10-frame window."""
 
 
-def test_motion_matrix_of_a_one_pixel_shift_recovers_the_shift_and_composition_applies_it() -> None:
+def ci_network() -> MMVP:
+    cfg = MmvpConfig(**load_config("ci").video_config["mmvp"])
     torch.manual_seed(0)
-    h, w = 5, 6
-    feats = torch.randn(1, 16, h, w)
-    shifted = torch.roll(feats, shifts=1, dims=3)  # every feature moves one pixel right (wrapping round)
-    matrix = motion_matrix(feats, shifted)
-    assert matrix.shape == (1, h * w, h * w)
-    assert matrix.abs().max() <= 1.0 + 1e-5  # cosine similarities
-    source = matrix[0].argmax(dim=0)  # for each target position, the most similar source position
-    ys, xs = torch.div(torch.arange(h * w), w, rounding_mode="floor"), torch.arange(h * w) % w
-    torch.testing.assert_close(source, ys * w + (xs - 1) % w)
-    moved = compose(matrix, feats, temperature=0.01)
-    torch.testing.assert_close(moved, shifted, atol=1e-3, rtol=0)
-    assert not torch.allclose(moved, feats, atol=0.5)
+    return MmvpPredictor(cfg, seed=0, progress=False).build_model().double()
 
 
-def test_composition_weights_are_a_softmax_over_sources() -> None:
-    feats = torch.tensor([[[[1.0, 3.0]]]])  # (1,1,1,2): two source positions
-    logits = torch.tensor([[[0.0, 2.0], [0.0, 0.0]]])  # target 0: equal weights; target 1: e^2 : 1 towards source 0
-    out = compose(logits, feats)
-    e = torch.exp(torch.tensor(2.0))
-    torch.testing.assert_close(out[0, 0, 0], torch.stack([torch.tensor(2.0), (e * 1.0 + 3.0) / (e + 1.0)]))
+def summary(out: torch.Tensor) -> dict[str, float]:
+    return {"sum": out.sum().item(), "sum_sq": out.square().sum().item(), "probe": out[0, -1, 1, 37, 20].item()}
 
 
-def test_predictor_and_model_shapes() -> None:
+def test_parameter_count_at_the_ci_widths() -> None:
+    assert sum(p.numel() for p in ci_network().parameters()) == CI_PARAMETERS
+
+
+def test_fixed_seed_output_at_the_ci_widths() -> None:
+    """Float64 on a fixed input: x86 CPUs of other instruction sets differ by ~1e-15, a real change far more."""
+    model = ci_network()
+    window = torch.rand(1, 10, 3, 64, 64, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    with torch.no_grad():
+        got = summary(model.eval()(window[:, :5]))
+        got_train = summary(model.train()(window))
+    assert got == pytest.approx(CI_OUTPUT, rel=1e-9)
+    assert got_train == pytest.approx(CI_TRAIN_OUTPUT, rel=1e-9)
+
+
+def test_frames_after_the_context_change_nothing_in_eval_mode() -> None:
     torch.manual_seed(0)
-    pred = MatrixPredictor(past=2, future=3, hidden=4)
-    assert pred(torch.rand(2, 2, 12, 12), 3, 4).shape == (2, 3, 12, 12)
-    model = MMVP(frames=3, hid_s=8, motion_channels=4, predictor_hidden=4, enc_layers=4)
-    assert model(torch.rand(2, 3, 3, 16, 12)).shape == (2, 3, 3, 16, 12)
+    model = MMVP(3, channels=4, predictor_channels=2, encoder_blocks=1, decoder_blocks=1, enhancer_blocks=1).double().eval()
+    x = torch.rand(2, 6, 3, 32, 32, dtype=torch.float64)
+    with torch.no_grad():
+        a, b = model(x[:, :3]), model(x)
+        model.train()
+        c, d = model(x[:, :3]), model(x)
+    assert a.shape == (2, 3, 3, 32, 32) and torch.equal(a, b)
+    assert (c - d).abs().max() > 1e-6  # in train mode they enter the filter blocks' batch statistics
+
+
+def test_matrix_predictor_maps_past_matrices_to_future_ones() -> None:
+    torch.manual_seed(0)
+    pred = MatrixPredictor(past=4, future=3, channels=2)
+    out = pred(torch.rand(2, 4, 48, 48), (6, 8))
+    assert out.shape == (2, 3, 48, 48)
+    rows = torch.rand(1, 4, 48, 48)
+    single = pred.eval()(rows, (6, 8))
+    moved = rows.clone()
+    moved[:, :, 5] = 0.0  # one source position's rows: each row is predicted on its own
+    changed = (pred(moved, (6, 8)) - single).abs().amax(dim=(0, 1, 3))
+    assert changed[5] > 0 and changed[torch.arange(48) != 5].max() == 0
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [("context_frames", 1, "a motion matrix needs two frames"), ("channels", 2, "must be >= 4"),
+     ("downsample", [2, 2], "three factors"), ("downsample", [2, 3, 2], "three factors"), ("encoder_blocks", 0, "must be >= 1"),
+     ("weight_decay", -0.1, "must be >= 0")],  # fmt: skip
+)
+def test_bad_options_are_errors_naming_the_field(field: str, value: object, match: str) -> None:
+    with pytest.raises(ClodsError, match=match) as e:
+        MmvpPredictor(MmvpConfig(**{field: value}))
+    assert e.value.where == f"video_config.mmvp.{field}"
