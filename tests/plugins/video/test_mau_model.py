@@ -18,7 +18,8 @@ from clods_bench.threads import torch_threads
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary
 
 CI = MauConfig(context_frames=5, hidden=14, num_layers=4, kernel=3, downsamples=2, train_steps=250, batch_size=8, learning_rate=1e-3)
-"""The ci preset's MAU widths and training length (clods_bench/benchmark/presets/ci.yaml)."""
+"""The ci preset's MAU widths (clods_bench/benchmark/presets/ci.yaml), trained 250 steps: a length whose schedule
+the test below works out by hand."""
 
 
 def test_attention_weights_sum_to_one_over_the_window() -> None:
@@ -76,7 +77,7 @@ def test_schedule_is_the_authors_at_their_length() -> None:
     assert worst_eta < 1e-9 and worst_lr < 1e-12  # eta: the loop's own rounding (80,000 subtractions)
 
 
-def test_schedule_at_ci_length_and_the_optimizer_follows_it() -> None:
+def test_schedule_at_250_steps_and_the_optimizer_follows_it() -> None:
     pred = MauPredictor(CI)  # S = 0.625 * 250 = 156.25, D = 0.025 * 250 = 6.25
     assert pred.truth_probability(0) == pytest.approx(1 - 1 / 156.25)
     assert pred.truth_probability(155) == pytest.approx(1 - 156 / 156.25) and pred.truth_probability(156) == 0.0
