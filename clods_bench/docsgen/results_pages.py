@@ -217,8 +217,8 @@ def index_page(root: Path) -> Generated:
         "# Results", "",
         "Every page of this section is generated from the files under `results/` when the site is built.", "",
         "- **`ci`** (`results/ci/`) is a **regression fixture**: every table of the paper at a size that runs on 2 CPU cores. "
-        "CI regenerates it and compares it with the committed files under `results/ci/tolerance.yaml`. Its learned rows "
-        "carry no scientific weight.",
+        "CI regenerates it and compares it with the committed files, exactly (`results/ci/tolerance.yaml`; "
+        "[exact numbers](../reproducibility.md)). Its learned rows carry no scientific weight.",
         "- **`small`** (`results/small-partial/`) is **evidence** for the paper's questions: the `small` preset, seed 0, the "
         "tables and rows that have run so far.",
         "- GPU measurements (`results/gpu_h200/`) and studies (`results/studies/`) name their GPU, CPU and date.", "",
