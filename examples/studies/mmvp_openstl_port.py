@@ -30,7 +30,8 @@ from clods_bench.plugins.video.mmvp_blocks import RRDB
 from clods_bench.plugins.video.mmvp_model import MMVP
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mmvp_same_weights import fail, reference_name  # noqa: E402 - the authors' names, shared with that study
+from mmvp_same_weights import reference_name  # noqa: E402 - the authors' names, shared with that study
+from same_weights_common import emit, fail  # noqa: E402
 
 REFERENCE = "github.com/chengtan9907/OpenSTL"
 COMMIT = "c74deb5d4c3da585291f9f18281f3fefdbba3a54"
@@ -130,10 +131,7 @@ def main() -> None:
     lines = [f"reference: {REFERENCE} at {COMMIT} (its MMVP files only); torch {torch.__version__}; float64"]
     for channels in (1, 3):
         lines += compare(model_cls, channels)
-    print("\n".join(lines))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text("\n".join(lines) + "\n")
+    emit(lines, args.out)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import re
-import subprocess
 import sys
 import types
 from pathlib import Path
@@ -33,6 +32,9 @@ import torch
 
 from clods_bench.plugins.video.mmvp_model import MMVP
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from same_weights_common import check_checkout, emit, fail  # noqa: E402
+
 REFERENCE = "github.com/Kay1794/MMVP-motion-matrix-based-video-prediction"
 COMMIT = "ebf84bb849dba80bdca5c40b76a6774fe4ec5c31"
 UNUSED = ("scale_fuser_1.", "scale_fuser_2.", "predictor.fuse_conv.")
@@ -41,22 +43,6 @@ CONFIGS = [  # (frames P, image side, channels, predictor channels, factors, RRD
     dict(frames=5, side=64, channels=16, predictor_channels=8, downsample=(2, 2, 2), blocks=2, batch=2),
     dict(frames=3, side=64, channels=8, predictor_channels=4, downsample=(2, 4, 2), blocks=1, batch=2),
 ]
-
-
-def fail(message: str) -> None:
-    print(message)
-    raise SystemExit(1)
-
-
-def check_checkout(path: Path) -> None:
-    """One clear line and exit unless `path` is a git checkout of the reference at COMMIT."""
-    if not (path / "model.py").is_file():
-        fail(f"{path}: no model.py here; expected a checkout of {REFERENCE}")
-    head = subprocess.run(["git", "-C", str(path), "rev-parse", "HEAD"], capture_output=True, text=True)
-    if head.returncode != 0:
-        fail(f"{path}: not a git checkout ({head.stderr.strip()}); expected {REFERENCE} at {COMMIT}")
-    if head.stdout.strip() != COMMIT:
-        fail(f"{path}: checkout is at {head.stdout.strip()}, this study knows {REFERENCE} at {COMMIT}")
 
 
 def import_reference(path: Path) -> Any:
@@ -196,15 +182,12 @@ def main() -> None:
     args = parser.parse_args()
     if not args.reference.is_dir():
         fail(f"{args.reference}: no such directory (a checkout of {REFERENCE} at {COMMIT})")
-    check_checkout(args.reference)
+    check_checkout(args.reference, "model.py", REFERENCE, COMMIT)
     ref_module = import_reference(args.reference)
     lines = [f"reference: {REFERENCE} at {COMMIT}; torch {torch.__version__}; float64"]
     for c in CONFIGS:
         lines += compare(ref_module, c)
-    print("\n".join(lines))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text("\n".join(lines) + "\n")
+    emit(lines, args.out)
 
 
 if __name__ == "__main__":

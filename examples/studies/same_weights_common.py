@@ -23,6 +23,14 @@ def fail(message: str) -> None:
     raise SystemExit(1)
 
 
+def emit(lines: list[str], out: Path | None) -> None:
+    """Print a study's lines, and write them to `out` as well when given (its folder made)."""
+    print("\n".join(lines))
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text("\n".join(lines) + "\n")
+
+
 def check_checkout(path: Path, marker: str, reference: str, commit: str) -> None:
     """One clear line and exit unless `path` is a git checkout of `reference` at `commit` holding `marker`."""
     if not (path / marker).is_file():
