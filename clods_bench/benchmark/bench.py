@@ -5,6 +5,8 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
+from clods_bench.deterministic_mode import cpu_model
+
 SOLVER_TARGET_S = 60.0  # 400 steps of the 1579-node flag on 2 cores
 CONTACT_TARGET_RATIO = 2.0  # contact with an obstacle may at most double the solver's time per step
 RASTER_TARGET_MS = 20.0  # one 128x128 view of that mesh
@@ -22,7 +24,7 @@ def bench_data(console: Console, steps: int = 400, views: int = 8) -> dict[str, 
     with console.status(f"rasterizer: {views} views at 128x128 ..."):
         raster = bench_rasterizer(num_views=views, size=128)
     per400 = solver["seconds_per_step"] * 400
-    table = Table(title="clods-bench bench data (1579-node flag, this machine)")
+    table = Table(title=f"clods-bench bench data (1579-node flag, {cpu_model()})")
     for col in ("what", "measured", "target", "measured / target"):
         table.add_column(col, justify="right")
     table.add_row("solver steps / s", f"{solver['steps_per_second']:.2f}", f"{400 / SOLVER_TARGET_S:.2f}", "")

@@ -129,7 +129,7 @@ def _init_worker(threads: int, parent: int | None = None) -> None:
 
 
 class LocalExecutor:
-    """Runs jobs on this machine: one after another in this process (`jobs=1`), or in `jobs` worker processes.
+    """Runs jobs locally: one after another in this process (`jobs=1`), or in `jobs` worker processes.
 
     With k > 1 workers on c cores each worker's torch threads are capped at max(1, c // k): the jobs
     share the cores instead of oversubscribing them. Jobs that need the same cached result (a stage-1

@@ -189,7 +189,7 @@ def load_lpips(
     )
     if jax_ckpt_path is not None:
         return LpipsUnavailable(why_jax)
-    return LpipsUnavailable(f"no LPIPS weights on this machine: {why_tv}; and {why_jax}")
+    return LpipsUnavailable(f"no LPIPS weights installed: {why_tv}; and {why_jax}")
 
 
 def image_scores(pred: np.ndarray, gt: np.ndarray, lpips: LpipsMetric | None = None) -> dict[str, np.ndarray]:

@@ -26,6 +26,7 @@ from rich.console import Console
 from rich.table import Table
 
 from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
+from clods_bench.deterministic_mode import cpu_model
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.scenes import Resolution, get_scene, simulate_scene
 from clods_bench.datasets.types import Trajectory
@@ -169,7 +170,7 @@ def bench_sim(
                     results[key] = time_simulator(spec, scene, [traj], inp, Path(tmp) / key.replace(":", "_"), base,
                                                   train_steps, clock)  # fmt: skip
     ref = results.get(reference)
-    table = Table(title=f"clods-bench bench sim ({mesh.num_nodes}-node flag, {frames - 2} rollout steps, this machine)")
+    table = Table(title=f"clods-bench bench sim ({mesh.num_nodes}-node flag, {frames - 2} rollout steps, {cpu_model()})")
     many = len(set(devices) | {"cpu"}) > 1
     cols = ["simulator", "train s/step", "infer ms/step", f"infer / {reference}"] + (["train cpu / this", "infer cpu / this"] if many else [])
     for col in cols + ["how"]:

@@ -21,6 +21,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from clods_bench.deterministic_mode import cpu_model
 from clods_bench.benchmark.config import RunConfig
 from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.interfaces import FitContext
@@ -116,7 +117,7 @@ def bench_video(
                 with console.status(f"timing {key} ..."):
                     s, how = time_predictor(spec, scene, values, videos, Path(tmp) / key.replace(":", "_"), train_steps, clock)
                 results[key] = VideoTiming(name, device, s, steps, how)
-    title = f"clods-bench bench video (preset {config.preset}: {NUM_VIDEOS} videos of {frames} frames, {size}x{size} px, this machine)"
+    title = f"clods-bench bench video (preset {config.preset}: {NUM_VIDEOS} videos of {frames} frames, {size}x{size} px, {cpu_model()})"
     table = Table(title=title)
     many = any(r.device != "cpu" for r in results.values())
     cols = ["predictor", "train s/step", f"/ {reference}", "preset steps", "preset training h"] + (["cpu / this"] if many else []) + ["how"]

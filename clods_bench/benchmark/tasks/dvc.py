@@ -76,7 +76,7 @@ class DvcConfig:
     'observed': from the meshes stage 2 recovered from the last two observed frames (interp_steps - 1, interp_steps),
     the context the video predictors get (frames up to interp_steps are the recovered meshes, rendered)."""
     lpips: bool = True
-    """Compute LPIPS when its weights are on this machine (never downloaded)."""
+    """Compute LPIPS when its weights are installed (never downloaded)."""
     grid_frames: int = 4
     """Scored frames of the first trajectory shown in the truth-vs-prediction PNG grid (0: no grid)."""
     video_format: Literal["gif", "mp4", "none"] = "gif"

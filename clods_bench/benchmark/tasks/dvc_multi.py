@@ -82,7 +82,7 @@ class DvcMultiConfig:
     """Simulator rows: trained from the training trajectories' videos (CloDS pipeline), on their meshes, or 'auto'
     (video when the pipeline is installed), as `task_config.dvc.sim_training`."""
     lpips: bool = True
-    """Compute LPIPS when its weights are on this machine (never downloaded)."""
+    """Compute LPIPS when its weights are installed (never downloaded)."""
     video_format: Literal["gif", "mp4", "none"] = "gif"
     """Written videos (truth above prediction) of the first trajectory of each split; mp4 needs imageio-ffmpeg."""
     video_fps: float = 10.0

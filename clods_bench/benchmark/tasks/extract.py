@@ -37,7 +37,7 @@ class ExtractConfig:
     num_trajectories: int | None = None
     """Extract the first k videos of the row's training set (`train_subset`); None: all of them."""
     lpips: bool = True
-    """A dataset without meshes: compute LPIPS of the re-rendered extraction when its weights are on this machine."""
+    """A dataset without meshes: compute LPIPS of the re-rendered extraction when its weights are installed."""
 
     def validate(self) -> None:
         """Raise ClodsError naming the field when it is out of range."""

@@ -61,7 +61,7 @@ class NvsConfig:
     frame_stride: int = 1
     """Score every k-th of those frames (1: all; larger keeps ci fast, above all for per-frame renderers)."""
     lpips: bool = True
-    """Compute LPIPS when its weights are on this machine (never downloaded)."""
+    """Compute LPIPS when its weights are installed (never downloaded)."""
     grid_frames: int = 3
     """Frames of the first trajectory shown in the GT-vs-render image grid (0: no grid)."""
 
