@@ -15,7 +15,6 @@ the same way), in eval mode and in train mode (loss and gradients).
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import subprocess
 import sys
@@ -31,7 +30,7 @@ from clods_bench.plugins.video.mmvp_model import MMVP
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mmvp_same_weights import reference_name  # noqa: E402 - the authors' names, shared with that study
-from same_weights_common import emit, fail  # noqa: E402
+from same_weights_common import emit, fail, reference_args  # noqa: E402
 
 REFERENCE = "github.com/chengtan9907/OpenSTL"
 COMMIT = "c74deb5d4c3da585291f9f18281f3fefdbba3a54"
@@ -121,12 +120,7 @@ def compare(model_cls: Any, image_channels: int) -> list[str]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("reference", type=Path, help=f"git checkout of {REFERENCE} at {COMMIT}")
-    parser.add_argument("--out", type=Path, help="also write the lines to this file")
-    args = parser.parse_args()
-    if not args.reference.is_dir():
-        fail(f"{args.reference}: no such directory (a checkout of {REFERENCE} at {COMMIT})")
+    args = reference_args(__doc__, REFERENCE, COMMIT)
     model_cls = load_port(args.reference)
     lines = [f"reference: {REFERENCE} at {COMMIT} (its MMVP files only); torch {torch.__version__}; float64"]
     for channels in (1, 3):

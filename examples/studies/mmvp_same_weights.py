@@ -20,7 +20,6 @@ replaced by empty stand-ins. Checked, per configuration:
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import re
 import sys
@@ -33,7 +32,7 @@ import torch
 from clods_bench.plugins.video.mmvp_model import MMVP
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from same_weights_common import check_checkout, emit, fail  # noqa: E402
+from same_weights_common import check_checkout, emit, fail, reference_args  # noqa: E402
 
 REFERENCE = "github.com/Kay1794/MMVP-motion-matrix-based-video-prediction"
 COMMIT = "ebf84bb849dba80bdca5c40b76a6774fe4ec5c31"
@@ -176,12 +175,7 @@ def compare(ref_module: Any, c: dict[str, Any]) -> list[str]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("reference", type=Path, help=f"git checkout of {REFERENCE} at {COMMIT}")
-    parser.add_argument("--out", type=Path, help="also write the lines to this file")
-    args = parser.parse_args()
-    if not args.reference.is_dir():
-        fail(f"{args.reference}: no such directory (a checkout of {REFERENCE} at {COMMIT})")
+    args = reference_args(__doc__, REFERENCE, COMMIT)
     check_checkout(args.reference, "model.py", REFERENCE, COMMIT)
     ref_module = import_reference(args.reference)
     lines = [f"reference: {REFERENCE} at {COMMIT}; torch {torch.__version__}; float64"]

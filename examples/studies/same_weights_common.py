@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import platform
@@ -21,6 +22,17 @@ def fail(message: str) -> None:
     """Print one line and exit with status 1."""
     print(message)
     raise SystemExit(1)
+
+
+def reference_args(doc: str, reference: str, commit: str) -> argparse.Namespace:
+    """The study's command line: the reference checkout (which must exist) and `--out`."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("reference", type=Path, help=f"git checkout of {reference} at {commit}")
+    parser.add_argument("--out", type=Path, help="also write the lines to this file")
+    args = parser.parse_args()
+    if not args.reference.is_dir():
+        fail(f"{args.reference}: no such directory (a checkout of {reference} at {commit})")
+    return args
 
 
 def emit(lines: list[str], out: Path | None) -> None:

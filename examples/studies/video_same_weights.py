@@ -63,6 +63,14 @@ def count(model: torch.nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
 
 
+ENCODER_DECODER = [
+    (r"enc\.(\d+)\.(conv|norm)\.(.+)", r"enc.enc.\1.conv.\2.\3"),
+    (r"dec\.(\d+)\.(conv|norm)\.(.+)", r"dec.dec.\1.conv.\2.\3"),
+    (r"readout\.(.+)", r"dec.readout.\1"),
+]
+"""Our encoder/decoder tensor names -> SimVP's and OpenSTL's (the same layout in both references)."""
+
+
 def study_simvp(root: Path) -> dict[str, Any]:
     need_file(root, "model.py")
     ref_mod = import_from(root, "model")
@@ -72,9 +80,7 @@ def study_simvp(root: Path) -> dict[str, Any]:
     ref = ref_mod.SimVP((T, 3, H, H), cfg.hid_s, cfg.hid_t, cfg.enc_layers, cfg.trans_layers, list(cfg.kernels), cfg.groups).double()
     randomize(ours, 1)
     names, _ = map_state(ours, ref, [
-        (r"enc\.(\d+)\.(conv|norm)\.(.+)", r"enc.enc.\1.conv.\2.\3"),
-        (r"dec\.(\d+)\.(conv|norm)\.(.+)", r"dec.dec.\1.conv.\2.\3"),
-        (r"readout\.(.+)", r"dec.readout.\1"),
+        *ENCODER_DECODER,
         (r"translator\.(enc|dec)\.(\d+)\.conv1\.(.+)", r"hid.\1.\2.conv1.\3"),
         (r"translator\.(enc|dec)\.(\d+)\.branches\.(\d+)\.(conv|norm)\.(.+)", r"hid.\1.\2.layers.\3.\4.\5"),
     ])  # fmt: skip
@@ -109,9 +115,7 @@ def study_tau(root: Path) -> dict[str, Any]:
         raise StudyError(f"OpenSTL's TAU attention is 21 px; the ci preset's video_config.tau.kernel_size is {cfg.kernel_size}")
     randomize(ours, 1)
     names, _ = map_state(ours, ref, [
-        (r"enc\.(\d+)\.(conv|norm)\.(.+)", r"enc.enc.\1.conv.\2.\3"),
-        (r"dec\.(\d+)\.(conv|norm)\.(.+)", r"dec.dec.\1.conv.\2.\3"),
-        (r"readout\.(.+)", r"dec.readout.\1"),
+        *ENCODER_DECODER,
         (r"translator\.(\d+)\.reduction\.(.+)", r"hid.enc.\1.reduction.\2"),
         (r"translator\.(\d+)\.attn\.unit\.(.+)", r"hid.enc.\1.block.attn.spatial_gating_unit.\2"),
         (r"translator\.(\d+)\.mlp\.dwconv\.(.+)", r"hid.enc.\1.block.mlp.dwconv.dwconv.\2"),
