@@ -17,6 +17,9 @@ processes inherit them:
 | threads (OpenMP, MKL, OpenBLAS, numba,   | OMP_NUM_THREADS, ...     | CLODS_BENCH_THREADS (default 1)  |
 | torch)                                   |                          | per job                          |
 
+One more thing is not an environment variable: MKL's vector `sqrt`, `log`, `tan`, `asin`, `acos` and `atan` depend on
+the CPU even under COMPATIBLE, so when torch is imported their CPU kernels are replaced by numpy's (`exact_math`).
+
 `CLODS_BENCH_DETERMINISTIC=0` (or `clods-bench --no-deterministic`) leaves every library on the host's own
 (fastest) paths; records and caches made that way are kept apart from deterministic ones.
 This module imports nothing numeric: it must run before those libraries load.
@@ -24,6 +27,8 @@ This module imports nothing numeric: it must run before those libraries load.
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import json
 import os
 import platform
@@ -34,7 +39,7 @@ SWITCH_ENV = "CLODS_BENCH_DETERMINISTIC"
 THREADS_ENV = "CLODS_BENCH_THREADS"
 BEFORE_PINS_ENV = "CLODS_BENCH_ENV_BEFORE_PINS"
 """Set by `apply()`: the pinned variables' values before the pins (JSON), for child processes' `host_environ()`."""
-PINS_VERSION = 1
+PINS_VERSION = 2
 """Bumped whenever the pins change: numbers made under other pins are not comparable bit for bit."""
 
 NUMERIC_MODULES = ("numpy", "torch", "numba", "scipy")
@@ -123,6 +128,44 @@ def apply() -> None:
         os.environ[key] = value
     os.environ[BEFORE_PINS_ENV] = json.dumps(_original, sort_keys=True)
     _state["applied"] = True
+    if "torch" in sys.modules:
+        from clods_bench import exact_math
+
+        exact_math.install()
+    elif not any(isinstance(f, _AfterTorchImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterTorchImport())
+
+
+class _AfterTorchImport(importlib.abc.MetaPathFinder):
+    """Finds `torch` as the other finders do and has `exact_math.install()` run once torch has loaded."""
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != "torch":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _InstallAfterExec(spec.loader)
+        return spec
+
+
+class _InstallAfterExec(importlib.abc.Loader):
+    """torch's own loader (every other attribute is passed through), then the exact-math kernels."""
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def create_module(self, spec: Any) -> Any:
+        return self._inner.create_module(spec)
+
+    def exec_module(self, module: Any) -> None:
+        self._inner.exec_module(module)
+        from clods_bench import exact_math
+
+        exact_math.install()
 
 
 def host_environ() -> dict[str, str]:
@@ -189,6 +232,8 @@ def describe() -> dict[str, Any]:
     """What a record says of the numeric paths it was made with (no library is imported)."""
     out: dict[str, Any] = {"mode": numeric_mode(), "cpu": cpu_model()}
     if enabled():
-        out.update({"pins_version": PINS_VERSION, "threads": threads(),
+        from clods_bench.exact_math import REPLACED
+
+        out.update({"pins_version": PINS_VERSION, "threads": threads(), "exact_math": list(REPLACED),
                     "pins": {k: os.environ.get(k) for k in sorted(pins())}})  # fmt: skip
     return out

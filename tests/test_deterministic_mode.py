@@ -29,6 +29,7 @@ def test_the_test_session_runs_on_the_pinned_paths() -> None:
     if X86_AVX2:
         assert paths["torch_cpu_capability"] == "AVX2" and paths["numba_cpu_name"] == "haswell"
         assert paths["numpy_dispatch_above_avx2"] == []
+    assert paths["torch_functions_on_numpy"] == ["sqrt", "log", "tan", "asin", "acos", "atan"]
 
 
 @pytest.mark.skipif(not X86_AVX2, reason="the committed digests are of the pinned x86-64 AVX2 paths")
@@ -86,13 +87,13 @@ def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.Monke
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("qemu-x86_64") is None or not X86_AVX2, reason="needs qemu-user (apt-get install qemu-user) on an x86-64 AVX2 host")
 @pytest.mark.parametrize("cpu", ["Haswell", "EPYC-Rome", "Skylake-Server-v4"])
-def test_emulated_intel_and_amd_cpus_give_one_set_of_bits(cpu: str) -> None:
+def test_emulated_intel_and_amd_cpus_give_the_committed_bits(cpu: str) -> None:
     """The same fits under QEMU's models of an AVX2 Intel (Haswell), an AVX2 AMD (EPYC Rome) and an AVX-512 Intel
-    (Skylake Server) CPU: MKL dispatches by vendor, oneDNN and ATen by instruction set; under the pins the three give
-    the committed emulated digests. They are not the host's digests: QEMU rounds one of the instructions of MKL's
-    vector math unlike the hardware (torch.sqrt of the same floats gives other bits under every emulated model than on
-    an Intel Xeon Sapphire Rapids), so emulation shows vendor and ISA independence, not a real CPU's bits."""
+    (Skylake Server) CPU give the committed digests of a real Intel Xeon: MKL dispatches by vendor, oneDNN and ATen by
+    instruction set, and under the pins all take the same arithmetic. QEMU computes IEEE arithmetic exactly and the
+    CPU's approximate instructions its own way, so this also shows that no pinned path depends on those (before
+    `exact_math`, MKL's vector sqrt did: see the file's `before_exact_math`)."""
     code = "import clods_bench, json\nfrom clods_bench.benchmark.determinism_probe import probe\nprint(json.dumps({k: v['digest'] for k, v in probe().items()}))"
     out = subprocess.run(["qemu-x86_64", "-cpu", cpu, sys.executable, "-c", code], capture_output=True, text=True, timeout=3000)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == COMMITTED["emulated_digests"]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == COMMITTED["digests"]

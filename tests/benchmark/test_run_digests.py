@@ -47,6 +47,9 @@ def test_files_that_cannot_match_bit_for_bit_are_refused_in_one_line(tmp_path: P
     two = {**_file(), "numerics": {**NUMERICS, "threads": 2}}
     with pytest.raises(ClodsError, match="1 thread\\(s\\) per job"):
         run_digests.check_comparable(_file(), two, "committed.json", "fresh.json")
+    newer = {**_file(), "numerics": {**NUMERICS, "pins_version": 2}}
+    with pytest.raises(ClodsError, match="made with pins 1 .* with pins 2"):
+        run_digests.check_comparable(_file(), newer, "committed.json", "fresh.json")
     path = tmp_path / "digests.json"
     path.write_text(json.dumps({**_file(), "format": 99, "clods_bench": "9.0.0"}))
     with pytest.raises(ClodsError, match=r"digests.json: digests format 99 \(written by clods-bench 9.0.0\); this release reads format 1"):
