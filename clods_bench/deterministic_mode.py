@@ -137,13 +137,21 @@ def apply() -> None:
 
 
 class _AfterTorchImport(importlib.abc.MetaPathFinder):
-    """Finds `torch` as the other finders do and has `exact_math.install()` run once torch has loaded."""
+    """Finds `torch` as the other finders do and has `exact_math.install()` run once torch has loaded. It stays on
+    `sys.meta_path` until then: `importlib.util.find_spec("torch")` (a library asking whether torch is there) comes
+    through here too without loading anything."""
+
+    def __init__(self) -> None:
+        self._searching = False
 
     def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
-        if fullname != "torch":
+        if fullname != "torch" or self._searching:
             return None
-        sys.meta_path.remove(self)
-        spec = importlib.util.find_spec(fullname)
+        self._searching = True  # the search below passes through this finder again
+        try:
+            spec = importlib.util.find_spec(fullname)
+        finally:
+            self._searching = False
         if spec is not None and spec.loader is not None:
             spec.loader = _InstallAfterExec(spec.loader)
         return spec
@@ -163,6 +171,7 @@ class _InstallAfterExec(importlib.abc.Loader):
 
     def exec_module(self, module: Any) -> None:
         self._inner.exec_module(module)
+        sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _AfterTorchImport)]
         from clods_bench import exact_math
 
         exact_math.install()

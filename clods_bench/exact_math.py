@@ -40,7 +40,8 @@ def _kernel(ufunc: Callable[[Any], Any]) -> Callable[[Any], Any]:
 
     def kernel(x: torch.Tensor) -> torch.Tensor:
         dtype = x.dtype if (x.dtype.is_floating_point or x.dtype.is_complex) else torch.get_default_dtype()
-        work = x.to(wide.get(dtype, dtype)) if x.dtype != wide.get(dtype, dtype) else x
+        target = wide.get(dtype, dtype)
+        work = x if x.dtype == target else x.to(target)
         with np.errstate(all="ignore"):
             out = torch.from_numpy(np.ascontiguousarray(ufunc(work.detach().contiguous().numpy())))
         return out if out.dtype == dtype else out.to(dtype)

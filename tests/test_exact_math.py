@@ -1,7 +1,14 @@
-"""The numpy kernels deterministic mode puts under torch's sqrt, log, tan, asin, acos and atan."""
+"""The numpy kernels deterministic mode puts under torch's sqrt, log, tan, asin, acos and atan.
+
+The test session runs in deterministic mode (`tests/test_deterministic_mode.py` asserts it), so the kernels here are
+the replacements; how each import order and the mode switch install them or not is checked in fresh interpreters.
+"""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from fractions import Fraction
 
 import numpy as np
@@ -11,7 +18,6 @@ import torch
 from clods_bench import deterministic_mode as dm
 from clods_bench import exact_math
 
-pytestmark = pytest.mark.skipif(not dm.enabled(), reason="the replacement is part of deterministic mode")
 
 
 def _is_correctly_rounded_sqrt(root: np.float32, v: np.float32) -> bool:
@@ -26,6 +32,23 @@ def _is_correctly_rounded_sqrt(root: np.float32, v: np.float32) -> bool:
 def test_installed_when_torch_loads_in_deterministic_mode() -> None:
     assert exact_math.installed()
     assert dm.describe()["exact_math"] == list(exact_math.REPLACED)
+
+
+def _installed_in_fresh_python(code: str, **env: str) -> str:
+    full = {k: v for k, v in os.environ.items() if k not in (dm.SWITCH_ENV, dm.BEFORE_PINS_ENV)} | env
+    out = subprocess.run([sys.executable, "-c", code + "\nfrom clods_bench import exact_math; print(exact_math.installed())"],
+                         capture_output=True, text=True, env=full, timeout=300)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_every_import_order_installs_them_and_host_mode_does_not() -> None:
+    # torch's presence looked up first (as libraries do), then imported: still installed once torch loads
+    assert _installed_in_fresh_python("import clods_bench, importlib.util\nimportlib.util.find_spec('torch')\nimport torch") == "True"
+    # torch loaded before clods_bench, with the pins exported beforehand (`numerics --export`): installed at once
+    assert _installed_in_fresh_python("import numpy, torch, clods_bench", **dm.pins()) == "True"
+    # the mode switched off: torch keeps MKL's kernels
+    assert _installed_in_fresh_python("import clods_bench, torch", **{dm.SWITCH_ENV: "0"}) == "False"
 
 
 def test_sqrt_is_correctly_rounded() -> None:
