@@ -7,18 +7,20 @@ processes inherit them:
 
 | library (what it computes here)          | variable                 | pinned to                        |
 | ---------------------------------------- | ------------------------ | -------------------------------- |
-| MKL (torch's matrix products, exp, ...)   | MKL_CBWR                 | COMPATIBLE (the AVX2 branch is    |
+| MKL (torch's rarer products, exp, ...)   | MKL_CBWR                 | COMPATIBLE (the AVX2 branch is    |
 |                                          |                          | not honoured on AMD CPUs)        |
 | oneDNN (torch's convolutions)            | ONEDNN_MAX_CPU_ISA       | AVX2                             |
 | ATen's vectorised kernels (torch)        | ATEN_CPU_CAPABILITY      | avx2                             |
 | numba (splatting, rasterizer, solver)    | NUMBA_CPU_NAME           | haswell                          |
 | numpy's SIMD dispatch                    | NPY_DISABLE_CPU_FEATURES | every target above AVX2          |
-| OpenBLAS (numpy, scipy)                  | OPENBLAS_CORETYPE        | Haswell (unless set already)     |
+| OpenBLAS (torch's mm/addmm/bmm, numpy)   | OPENBLAS_CORETYPE        | Haswell                          |
 | threads (OpenMP, MKL, OpenBLAS, numba,   | OMP_NUM_THREADS, ...     | CLODS_BENCH_THREADS (default 1)  |
 | torch)                                   |                          | per job                          |
 
-One more thing is not an environment variable: MKL's vector `sqrt`, `log`, `tan`, `asin`, `acos` and `atan` depend on
-the CPU even under COMPATIBLE, so when torch is imported their CPU kernels are replaced by numpy's (`exact_math`).
+Two more things are not environment variables. MKL's vector `sqrt`, `log`, `tan`, `asin`, `acos` and `atan` depend on
+the CPU even under COMPATIBLE, so when torch is imported their CPU kernels are replaced by numpy's (`exact_math`). And
+MKL's COMPATIBLE GEMMs are SSE2 code (its AVX2 branch depends on the CPU's vendor), so torch's `mm`, `addmm`, `bmm`
+and `baddbmm` go to numpy's OpenBLAS, whose Haswell kernels are chosen by name (`exact_matmul`).
 
 `CLODS_BENCH_DETERMINISTIC=0` (or `clods-bench --no-deterministic`) leaves every library on the host's own
 (fastest) paths; records and caches made that way are kept apart from deterministic ones.
@@ -39,7 +41,7 @@ SWITCH_ENV = "CLODS_BENCH_DETERMINISTIC"
 THREADS_ENV = "CLODS_BENCH_THREADS"
 BEFORE_PINS_ENV = "CLODS_BENCH_ENV_BEFORE_PINS"
 """Set by `apply()`: the pinned variables' values before the pins (JSON), for child processes' `host_environ()`."""
-PINS_VERSION = 2
+PINS_VERSION = 3
 """Bumped whenever the pins change: numbers made under other pins are not comparable bit for bit."""
 
 NUMERIC_MODULES = ("numpy", "torch", "numba", "scipy")
@@ -104,11 +106,9 @@ def pins(n_threads: int | None = None) -> dict[str, str]:
 
 
 def _openblas_core() -> str:
-    """OpenBLAS's kernel: one the environment chose (some hosts set a safe one), else Haswell's (every AVX2 CPU runs it).
-    No number of clods-bench goes through OpenBLAS (the data generator writes its small products out), so it is pinned
-    for numpy's and scipy's own consistency only."""
-    before = _original["OPENBLAS_CORETYPE"] if "OPENBLAS_CORETYPE" in _original else os.environ.get("OPENBLAS_CORETYPE")
-    return before or "Haswell"
+    """OpenBLAS's kernel: Haswell's, which every AVX2 CPU runs, whatever the environment chose (torch's matrix products
+    go through it in deterministic mode, so another kernel would give other bits)."""
+    return "Haswell"
 
 
 def apply() -> None:
@@ -129,15 +129,13 @@ def apply() -> None:
     os.environ[BEFORE_PINS_ENV] = json.dumps(_original, sort_keys=True)
     _state["applied"] = True
     if "torch" in sys.modules:
-        from clods_bench import exact_math
-
-        exact_math.install()
+        install_kernels()
     elif not any(isinstance(f, _AfterTorchImport) for f in sys.meta_path):
         sys.meta_path.insert(0, _AfterTorchImport())
 
 
 class _AfterTorchImport(importlib.abc.MetaPathFinder):
-    """Finds `torch` as the other finders do and has `exact_math.install()` run once torch has loaded. It stays on
+    """Finds `torch` as the other finders do and has `install_kernels()` run once torch has loaded. It stays on
     `sys.meta_path` until then: `importlib.util.find_spec("torch")` (a library asking whether torch is there) comes
     through here too without loading anything."""
 
@@ -158,7 +156,7 @@ class _AfterTorchImport(importlib.abc.MetaPathFinder):
 
 
 class _InstallAfterExec(importlib.abc.Loader):
-    """torch's own loader (every other attribute is passed through), then the exact-math kernels."""
+    """torch's own loader (every other attribute is passed through), then the replacement kernels."""
 
     def __init__(self, inner: Any) -> None:
         self._inner = inner
@@ -172,9 +170,15 @@ class _InstallAfterExec(importlib.abc.Loader):
     def exec_module(self, module: Any) -> None:
         self._inner.exec_module(module)
         sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _AfterTorchImport)]
-        from clods_bench import exact_math
+        install_kernels()
 
-        exact_math.install()
+
+def install_kernels() -> None:
+    """Register deterministic mode's replacements for torch's CPU kernels (`exact_math`, `exact_matmul`)."""
+    from clods_bench import exact_math, exact_matmul
+
+    exact_math.install()
+    exact_matmul.install()
 
 
 def host_environ() -> dict[str, str]:
@@ -241,8 +245,9 @@ def describe() -> dict[str, Any]:
     """What a record says of the numeric paths it was made with (no library is imported)."""
     out: dict[str, Any] = {"mode": numeric_mode(), "cpu": cpu_model()}
     if enabled():
-        from clods_bench.exact_math import REPLACED
+        from clods_bench import exact_math, exact_matmul
 
-        out.update({"pins_version": PINS_VERSION, "threads": threads(), "exact_math": list(REPLACED),
+        out.update({"pins_version": PINS_VERSION, "threads": threads(), "exact_math": list(exact_math.REPLACED),
+                    "exact_matmul": list(exact_matmul.REPLACED),
                     "pins": {k: os.environ.get(k) for k in sorted(pins())}})  # fmt: skip
     return out

@@ -36,19 +36,21 @@ def test_installed_when_torch_loads_in_deterministic_mode() -> None:
 
 def _installed_in_fresh_python(code: str, **env: str) -> str:
     full = {k: v for k, v in os.environ.items() if k not in (dm.SWITCH_ENV, dm.BEFORE_PINS_ENV)} | env
-    out = subprocess.run([sys.executable, "-c", code + "\nfrom clods_bench import exact_math; print(exact_math.installed())"],
+    probe = "\nfrom clods_bench import exact_math, exact_matmul; print(exact_math.installed() and exact_matmul.installed(), exact_math.installed() or exact_matmul.installed())"
+    out = subprocess.run([sys.executable, "-c", code + probe],
                          capture_output=True, text=True, env=full, timeout=300)  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
     return out.stdout.strip().splitlines()[-1]
 
 
 def test_every_import_order_installs_them_and_host_mode_does_not() -> None:
+    """Both replacements (these functions and `exact_matmul`'s products) are installed together, or neither."""
     # torch's presence looked up first (as libraries do), then imported: still installed once torch loads
-    assert _installed_in_fresh_python("import clods_bench, importlib.util\nimportlib.util.find_spec('torch')\nimport torch") == "True"
+    assert _installed_in_fresh_python("import clods_bench, importlib.util\nimportlib.util.find_spec('torch')\nimport torch") == "True True"
     # torch loaded before clods_bench, with the pins exported beforehand (`numerics --export`): installed at once
-    assert _installed_in_fresh_python("import numpy, torch, clods_bench", **dm.pins()) == "True"
+    assert _installed_in_fresh_python("import numpy, torch, clods_bench", **dm.pins()) == "True True"
     # the mode switched off: torch keeps MKL's kernels
-    assert _installed_in_fresh_python("import clods_bench, torch", **{dm.SWITCH_ENV: "0"}) == "False"
+    assert _installed_in_fresh_python("import clods_bench, torch", **{dm.SWITCH_ENV: "0"}) == "False False"
 
 
 def test_sqrt_is_correctly_rounded() -> None:

@@ -1,0 +1,142 @@
+"""The matrix products deterministic mode takes away from MKL and computes with numpy on OpenBLAS's Haswell kernels.
+
+Under `MKL_CBWR=COMPATIBLE` MKL's GEMMs give the same bits on every x86 CPU, but that branch is SSE2 code: torch's
+`mm` of a 9000x384 by 384x128 float32 matrix took 28 ms on one core of an Intel Xeon (Sapphire Rapids) against 7 ms
+on the host's own branch, and the graph networks' training 2.5-2.9x their host-path time. MKL's AVX2 branch is fast
+but gave other bits under QEMU's AMD EPYC Rome than on the Xeon. OpenBLAS's kernels are chosen by name instead of by
+CPU vendor (`OPENBLAS_CORETYPE=Haswell`, which deterministic mode sets): the same instructions on every AVX2 CPU, with
+blocking that is a compile-time constant of the kernel, hence the same bits (checked on the Xeon and under QEMU's
+Haswell, EPYC-Rome and Skylake-Server-v4), at 9.8 ms for the product above.
+
+`mm`, `addmm`, `bmm` and `baddbmm` (out-of-place, in-place and `out=` forms) get CPU kernels that hand the product to
+`numpy.matmul` (one BLAS call per matrix; operands in neither row- nor column-major layout are copied first, so numpy
+never falls back to its loop); `addmm`/`baddbmm` then add `beta * self` in numpy. `nn.Linear` reaches them through
+`addmm`/`mm`, and autograd's backward formulas, which sit above the CPU kernels, call `mm` again. Convolutions stay
+on oneDNN (pinned to AVX2) and the rarer products (`mv`, `dot`, `addbmm`, ...) on MKL's COMPATIBLE branch: those
+are the same bits everywhere too, only slower.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+REPLACED = ("mm", "addmm", "bmm", "baddbmm")
+"""The ATen matrix products whose CPU kernels deterministic mode replaces."""
+
+_state: dict[str, Any] = {"library": None}
+
+
+def installed() -> bool:
+    """Whether the replacement kernels are registered in this process."""
+    return _state["library"] is not None
+
+
+def _operand(t: Any) -> Any:
+    """`t` as a numpy array BLAS can take without a copy inside numpy: its last two axes row- or column-major
+    (else a contiguous copy); half and bfloat16 widen to float32, as ATen accumulates them."""
+    import torch
+
+    t = t.detach()
+    if t.dtype in (torch.float16, torch.bfloat16):
+        t = t.float()
+    rows, cols = t.shape[-2], t.shape[-1]
+    s_row, s_col = t.stride(-2), t.stride(-1)
+    row_major = s_col == 1 and s_row >= max(cols, 1)
+    col_major = s_row == 1 and s_col >= max(rows, 1)
+    if not (row_major or col_major):
+        t = t.contiguous()
+    return t.numpy()
+
+
+def _product(a: Any, b: Any) -> Any:
+    """`a @ b` for CPU tensors of two or three dimensions, as a numpy array (OpenBLAS under the pins)."""
+    import numpy as np
+
+    return np.matmul(_operand(a), _operand(b))
+
+
+def _combine(product: Any, self: Any, beta: Any, alpha: Any, dtype: Any) -> Any:
+    """`beta * self + alpha * product` as ATen's addmm defines it (`self` ignored when beta is 0), in `dtype`."""
+    import numpy as np
+    import torch
+
+    if alpha != 1:
+        np.multiply(product, np.asarray(alpha, dtype=product.dtype), out=product)
+    if beta != 0:
+        base = self.detach()
+        base = base.float() if base.dtype in (torch.float16, torch.bfloat16) else base
+        base = base.numpy()
+        if beta != 1:
+            base = base * np.asarray(beta, dtype=product.dtype)
+        np.add(product, base, out=product)  # `product` is numpy's fresh result: safe to overwrite
+    out = torch.from_numpy(np.ascontiguousarray(product))
+    return out if out.dtype == dtype else out.to(dtype)
+
+
+def _check(name: str, a: Any, b: Any, dims: int) -> None:
+    """ATen's shape checks, with its messages, before numpy sees the operands."""
+    if a.dim() != dims or b.dim() != dims:
+        raise RuntimeError(f"{name}: expected {dims}D tensors, but got {a.dim()}D and {b.dim()}D tensors")
+    if a.shape[-1] != b.shape[-2] or (dims == 3 and a.shape[0] != b.shape[0]):
+        raise RuntimeError(f"{name}: mat1 and mat2 shapes cannot be multiplied ({'x'.join(map(str, a.shape))} and "
+                           f"{'x'.join(map(str, b.shape))})")
+    if a.dtype != b.dtype:
+        raise RuntimeError(f"{name}: expected mat1 and mat2 to have the same dtype, but got: {a.dtype} != {b.dtype}")
+
+
+def _write(out: Any, value: Any) -> Any:
+    """Copy `value` into the `out=` tensor, resizing it as ATen's out forms do."""
+    if out.shape != value.shape:
+        out.resize_(value.shape)
+    return out.copy_(value)
+
+
+def mm(a: Any, b: Any) -> Any:
+    """`a @ b` for two matrices."""
+    _check("mm", a, b, 2)
+    return _combine(_product(a, b), None, 0, 1, a.dtype)
+
+
+def bmm(a: Any, b: Any) -> Any:
+    """`a @ b` for two batches of matrices."""
+    _check("bmm", a, b, 3)
+    return _combine(_product(a, b), None, 0, 1, a.dtype)
+
+
+def addmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
+    """`beta * self + alpha * (a @ b)`, `self` broadcast to the product's shape."""
+    _check("addmm", a, b, 2)
+    return _combine(_product(a, b), self, beta, alpha, a.dtype)
+
+
+def baddbmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
+    """`beta * self + alpha * (a @ b)` for batches of matrices."""
+    _check("baddbmm", a, b, 3)
+    return _combine(_product(a, b), self, beta, alpha, a.dtype)
+
+
+def install() -> None:
+    """Register the numpy kernels for `REPLACED` on torch's CPU dispatch key (once per process; imports torch)."""
+    if installed():
+        return
+    import torch
+
+    library = torch.library.Library("aten", "IMPL")
+    forms = {
+        "mm": mm,
+        "mm.out": lambda a, b, *, out: _write(out, mm(a, b)),
+        "bmm": bmm,
+        "bmm.out": lambda a, b, *, out: _write(out, bmm(a, b)),
+        "addmm": addmm,
+        "addmm_": lambda s, a, b, *, beta=1, alpha=1: s.copy_(addmm(s, a, b, beta=beta, alpha=alpha)),
+        "addmm.out": lambda s, a, b, *, beta=1, alpha=1, out: _write(out, addmm(s, a, b, beta=beta, alpha=alpha)),
+        "baddbmm": baddbmm,
+        "baddbmm_": lambda s, a, b, *, beta=1, alpha=1: s.copy_(baddbmm(s, a, b, beta=beta, alpha=alpha)),
+        "baddbmm.out": lambda s, a, b, *, beta=1, alpha=1, out: _write(out, baddbmm(s, a, b, beta=beta, alpha=alpha)),
+    }
+    with warnings.catch_warnings():  # "Overriding a previously registered kernel": that is the point
+        warnings.simplefilter("ignore")
+        for name, kernel in forms.items():
+            library.impl(name, kernel, "CPU")
+    _state["library"] = library
