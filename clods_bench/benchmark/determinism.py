@@ -61,6 +61,29 @@ def check_numeric_paths() -> None:
         )  # fmt: skip
 
 
+def openblas_core() -> str:
+    """The kernel numpy's OpenBLAS runs (its `get_corename`, e.g. 'Haswell'), or 'unknown' where it cannot be asked
+    (not Linux, or a numpy built on another BLAS)."""
+    import ctypes
+    import re
+
+    import numpy  # noqa: F401  (loads the library)
+
+    try:
+        with open("/proc/self/maps", encoding="utf-8") as fh:
+            paths = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", fh.read())))
+    except OSError:
+        return "unknown"
+    for path in paths:
+        lib = ctypes.CDLL(path)
+        for name in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename", "openblas_get_corename64_", "openblas_get_corename"):
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                fn.restype = ctypes.c_char_p
+                return fn().decode().strip()
+    return "unknown"
+
+
 def effective_paths() -> dict[str, Any]:
     """The code paths the numeric libraries actually use in this process (imports numpy, torch and numba)."""
     import numba
@@ -82,4 +105,5 @@ def effective_paths() -> dict[str, Any]:
         "onednn_max_isa": os.environ.get("ONEDNN_MAX_CPU_ISA", "host"),
         "torch_functions_on_numpy": list(exact_math.REPLACED) if exact_math.installed() else [],
         "torch_products_on_openblas": list(exact_matmul.REPLACED) if exact_matmul.installed() else [],
+        "openblas_core": openblas_core(),
     }
