@@ -37,7 +37,7 @@ def _operand(t: Any) -> Any:
     (else a contiguous copy); half and bfloat16 widen to float32, as ATen accumulates them."""
     import torch
 
-    t = t.detach()
+    t = t.detach().resolve_conj().resolve_neg()  # lazy conjugate / negative views made real
     if t.dtype in (torch.float16, torch.bfloat16):
         t = t.float()
     rows, cols = t.shape[-2], t.shape[-1]
@@ -64,7 +64,7 @@ def _combine(product: Any, self: Any, beta: Any, alpha: Any, dtype: Any) -> Any:
     if alpha != 1:
         np.multiply(product, np.asarray(alpha, dtype=product.dtype), out=product)
     if beta != 0:
-        base = self.detach()
+        base = self.detach().resolve_conj().resolve_neg()
         base = base.float() if base.dtype in (torch.float16, torch.bfloat16) else base
         base = base.numpy()
         if beta != 1:

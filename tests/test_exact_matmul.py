@@ -105,7 +105,8 @@ def test_gradients_match_finite_differences() -> None:
 
 
 def test_other_dtypes_and_empty_products() -> None:
-    """Half and bfloat16 are multiplied in float32 and rounded once, integers exactly."""
+    """Half and bfloat16 are multiplied in float32 and rounded once, integers exactly, complex conjugate views
+    resolved."""
     a, b = _randn(8, 16), _randn(16, 4)
     for low in (torch.float16, torch.bfloat16):
         got = torch.mm(a.to(low), b.to(low))
@@ -114,6 +115,8 @@ def test_other_dtypes_and_empty_products() -> None:
     ints = torch.arange(12).reshape(3, 4)
     assert torch.equal(torch.mm(ints, ints.t()), torch.from_numpy(ints.numpy() @ ints.numpy().T))
     assert torch.equal(torch.mm(torch.zeros(3, 0), torch.zeros(0, 2)), torch.zeros(3, 2))
+    c = _randn(3, 4, dtype=torch.complex64)
+    assert torch.equal(torch.mm(c.conj(), c.t()), torch.from_numpy(np.matmul(c.numpy().conj(), c.numpy().T)))  # a lazy conjugate
 
 
 def test_bad_shapes_and_dtypes_raise_atens_error() -> None:
