@@ -86,7 +86,8 @@ def threads() -> int:
 
 
 def pins(n_threads: int | None = None) -> dict[str, str]:
-    """The environment deterministic mode sets (OPENBLAS_CORETYPE only when not set already)."""
+    """The environment deterministic mode sets (on a CPU without AVX2 it leaves OPENBLAS_CORETYPE alone: Haswell's
+    kernel would stop numpy's import with an illegal instruction before the run can name the missing feature)."""
     n = str(threads() if n_threads is None else int(n_threads))
     env = {
         "MKL_CBWR": "COMPATIBLE",
@@ -101,7 +102,8 @@ def pins(n_threads: int | None = None) -> dict[str, str]:
         "NUMBA_NUM_THREADS": n,
         "CLODS_BENCH_MAX_THREADS": n,
     }
-    env["OPENBLAS_CORETYPE"] = _openblas_core()
+    if not missing_cpu_features():
+        env["OPENBLAS_CORETYPE"] = _openblas_core()
     return env
 
 
@@ -116,7 +118,7 @@ def apply() -> None:
     if _state["applied"] or not enabled():
         return
     wanted = pins()
-    _state["late"] = [m for m in NUMERIC_MODULES if m in sys.modules and any(os.environ.get(k) != wanted[k] for k in _PINNED_BY[m])]
+    _state["late"] = [m for m in NUMERIC_MODULES if m in sys.modules and any(k in wanted and os.environ.get(k) != wanted[k] for k in _PINNED_BY[m])]
     inherited = os.environ.get(BEFORE_PINS_ENV)  # a parent clods-bench process pinned them already: its originals
     if inherited:
         try:
