@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from clods_bench.plugins.simulators.learned.graph import EdgeSet
+from clods_bench.truncated_normal import truncated_normal_
 
 
 def make_mlp(
@@ -37,7 +38,7 @@ def make_mlp(
         for m in layers:  # Sonnet's default init: truncated normal, std 1/sqrt(fan_in), zero bias
             if isinstance(m, nn.Linear):
                 std = 1.0 / math.sqrt(m.in_features)
-                nn.init.trunc_normal_(m.weight, std=std, a=-2 * std, b=2 * std)
+                truncated_normal_(m.weight, std=std, a=-2 * std, b=2 * std)
                 nn.init.zeros_(m.bias)
     return nn.Sequential(*layers)
 

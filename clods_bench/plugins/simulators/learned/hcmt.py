@@ -32,6 +32,7 @@ from clods_bench.plugins.simulators.learned.hierarchy import HierarchyCache
 from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
 from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 from clods_bench.plugins.simulators.learned.unet_configs import HcmtConfig
+from clods_bench.truncated_normal import truncated_normal_
 
 SCORE_CLIP = 2.0  # the code's tf.clip_by_value(score, -2, 2)
 
@@ -40,7 +41,7 @@ def sonnet_linear(in_size: int, out_size: int) -> nn.Linear:
     """Bias-free Linear with Sonnet's default initialisation (truncated normal, std 1/sqrt(fan_in)), as `snt.Linear`."""
     layer = nn.Linear(in_size, out_size, bias=False)
     std = 1.0 / math.sqrt(in_size)
-    nn.init.trunc_normal_(layer.weight, std=std, a=-2 * std, b=2 * std)
+    truncated_normal_(layer.weight, std=std, a=-2 * std, b=2 * std)
     return layer
 
 
