@@ -70,3 +70,16 @@ def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match=r"\[5.0, 6.0\] holds 2.86e-07 of normal"):
         truncated_normal_(torch.empty(3), mean=0.0, std=1.0, a=5.0, b=6.0)
     assert truncated_normal_(torch.empty(0)).numel() == 0
+
+
+def test_no_model_draws_through_torchs_own_trunc_normal() -> None:
+    """A model calling `nn.init.trunc_normal_` would start from other weights under torch < 2.13 (other bits)."""
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parents[1] / "clods_bench"
+    callers = [
+        str(p.relative_to(package))
+        for p in package.rglob("*.py")
+        if p.name != "truncated_normal.py" and "trunc_normal_(" in p.read_text().replace("truncated_normal_(", "")
+    ]
+    assert callers == []
