@@ -1,7 +1,8 @@
 """Which torch operation makes two CPUs' bits part: trace one tiny fit, on each CPU, then compare the two traces.
 
 `trace FIT OUT` runs one of the determinism probe's fits (graph net, video predictor, renderer fit, extraction) or
-a tiny fit of TAU, MAU or MMVP under a dispatch mode that records, for every torch operation, a hash of its float
+a tiny fit of TAU, MAU or MMVP (`tau-ci`, `mau-ci`, `mmvp-ci`: three steps at the `ci` preset's widths) under a
+dispatch mode that records, for every torch operation, a hash of its float
 inputs and of its outputs. `compare A B` lists the operations that were given the same inputs in both traces and
 returned other outputs: the kernels that depend on the CPU. Run the trace natively and under an emulated CPU, e.g.
 
@@ -64,15 +65,29 @@ class _Recorder(TorchDispatchMode):
         return out
 
 
+def _ci_values(name: str) -> dict[str, Any]:
+    """The `ci` preset's settings of video predictor `name` (threads left to deterministic mode)."""
+    import yaml
+
+    preset = Path(clods_bench.__file__).parent / "benchmark" / "presets" / "ci.yaml"
+    values = dict(yaml.safe_load(preset.read_text())["video_config"][name])
+    values.pop("num_threads", None)
+    return values
+
+
 def trace(fit: str, out: Path) -> None:
     """Run `fit` under the recorder; write {'digest', 'log'} to `out`."""
     recorder = _Recorder()
     with tempfile.TemporaryDirectory() as d:
         work = Path(d)
-        if fit in VIDEO:
-            pred = probe._build("video_predictor", fit, {**VIDEO[fit], "context_frames": 3, "train_steps": 4, "batch_size": 2,
-                                                         "checkpoint_every": 1000}, work)  # fmt: skip
-            videos = [np.stack([probe._images(1, 32, 0.3 * k + v)[0] for k in range(8)]) for v in range(3)]
+        if fit.removesuffix("-ci") in VIDEO:
+            name = fit.removesuffix("-ci")
+            if fit.endswith("-ci"):  # the `ci` preset's widths, 64 px, three steps
+                values, size, frames = {**_ci_values(name), "train_steps": 3}, 64, 12
+            else:
+                values, size, frames = {**VIDEO[name], "context_frames": 3, "train_steps": 4, "batch_size": 2}, 32, 8
+            pred = probe._build("video_predictor", name, {**values, "checkpoint_every": 1000}, work)
+            videos = [np.stack([probe._images(1, size, 0.3 * k + v)[0] for k in range(frames)]) for v in range(3)]
             with recorder:
                 pred.fit(videos, FitContext(work_dir=work / fit, seed=0, progress=False))
             digest = probe._digest(pred)
@@ -80,7 +95,7 @@ def trace(fit: str, out: Path) -> None:
             with recorder:
                 digest = probe.PROBES[fit](work)
         else:
-            raise SystemExit(f"unknown fit {fit!r}: one of {', '.join([*probe.PROBES, *VIDEO])}")
+            raise SystemExit(f"unknown fit {fit!r}: one of {', '.join([*probe.PROBES, *VIDEO, *(v + '-ci' for v in VIDEO)])}")
     out.write_text(json.dumps({"fit": fit, "digest": digest, "log": recorder.log}))
     print(f"{fit}: digest {digest}, {len(recorder.log)} operations -> {out}")
 
