@@ -66,9 +66,9 @@ def _downloads(files: list[tuple[Path, str]]) -> str:
     return "Files: " + ", ".join(f"[`{src.name}`]({dst})" for src, dst in files) + "."
 
 
-def _copies(stem: Path, root: Path, folder: str) -> list[tuple[Path, str]]:
-    """(source, site path) of a table's CSV and LaTeX files that exist."""
-    return [(stem.with_suffix(ext), f"files/{folder}/{stem.with_suffix(ext).name}") for ext in (".csv", ".tex") if stem.with_suffix(ext).is_file()]
+def _copies(stem: Path, folder: str, name: str) -> list[tuple[Path, str]]:
+    """(source, site path) of a table's CSV and LaTeX files that exist; `name` keeps its subfolders (`a/t` and `t` differ)."""
+    return [(stem.with_suffix(ext), f"files/{folder}/{name}{ext}") for ext in (".csv", ".tex") if stem.with_suffix(ext).is_file()]
 
 
 def _manifest_rows(manifest: dict[str, Any], table: str) -> list[str]:
@@ -123,7 +123,7 @@ def table_pages(root: Path) -> list[Generated]:
             raise ClodsError(f"table '{t.id}' has no committed file {md.relative_to(root)}", where=t.where,
                              hint=f"make it with `{ci['one_table'].format(table=t.id)}`")  # fmt: skip
         lines = [f"# {t.title}", "", f"Task `{t.task}`: what it measures and how each metric is computed is on [its page](../{TASK_PAGES.get(t.task, 'tasks/index.md')}).", ""]
-        copies = _copies(ci_dir / t.id, root, "ci")
+        copies = _copies(ci_dir / t.id, "ci", t.id)
         lines += ["## At `ci`: a regression fixture", "", *_table_body(md), "", "Made by (the whole plan, or this table alone):", ""]
         lines += [*_code(f"{ci['made_by']}\n{ci['one_table'].format(table=t.id)}"), "", _downloads(copies), ""]
         rows = _manifest_rows(manifest, t.id)
@@ -135,7 +135,7 @@ def table_pages(root: Path) -> list[Generated]:
             lines += ["## At `small`: evidence, seed 0, in part", ""]
         for e in mine:
             stem = small_dir / e["file"]
-            files = _copies(stem, root, "small")
+            files = _copies(stem, "small", e["file"])
             lines += [f"### `{e['file']}`", ""] + ([e["note"], ""] if e.get("note") else [])
             lines += [*_table_body(stem.with_suffix(".md")), "", "Made by:", "", *_code(e["made_by"]), ""] + ([_downloads(files), ""] if files else [])
             copies += files

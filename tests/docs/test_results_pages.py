@@ -34,6 +34,16 @@ def test_every_small_table_and_picture_is_on_a_page() -> None:
     assert copied == set((ROOT / "results").rglob("*.png"))
 
 
+def test_each_small_file_is_copied_to_its_own_place_on_the_site() -> None:
+    """Two tables with one name in different folders (a rerun beside the original) keep both downloads."""
+    generated = results_pages(ROOT)
+    paths = [g.path for g in generated]
+    assert len(paths) == len(set(paths)), sorted(p for p in paths if paths.count(p) > 1)
+    sources = {g.path: g.source for g in generated if g.source}
+    for rel in ("cdg_flag_small.csv", "ported_simulators/cdg_flag_small.csv"):
+        assert sources[f"results/files/small/{rel}"] == ROOT / "results/small-partial" / rel
+
+
 def _fake_root(tmp_path: Path) -> Path:
     """A checkout with a two-table plan, its ci tables, one small table and one picture, all listed."""
     (tmp_path / "clods_bench/benchmark/plans").mkdir(parents=True)
