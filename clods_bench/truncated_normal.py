@@ -15,7 +15,7 @@ import math
 import torch
 
 MIN_MASS = 0.3
-"""The interval must hold at least this share of the normal's mass (redrawing would be slow otherwise)."""
+"""The interval must hold more than this share of the normal's mass (redrawing would be slow otherwise)."""
 
 
 @torch.no_grad()
