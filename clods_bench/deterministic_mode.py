@@ -13,14 +13,14 @@ processes inherit them:
 | ATen's vectorised kernels (torch)        | ATEN_CPU_CAPABILITY      | avx2                             |
 | numba (splatting, rasterizer, solver)    | NUMBA_CPU_NAME           | haswell                          |
 | numpy's SIMD dispatch                    | NPY_DISABLE_CPU_FEATURES | every target above AVX2          |
-| OpenBLAS (torch's mm/addmm/bmm, numpy)   | OPENBLAS_CORETYPE        | Haswell                          |
+| OpenBLAS (numpy's and scipy's products)  | OPENBLAS_CORETYPE        | Haswell                          |
 | threads (OpenMP, MKL, OpenBLAS, numba,   | OMP_NUM_THREADS, ...     | CLODS_BENCH_THREADS (default 1)  |
 | torch)                                   |                          | per job                          |
 
 Two more things are not environment variables. MKL's vector `sqrt`, `log`, `tan`, `asin`, `acos` and `atan` depend on
 the CPU even under COMPATIBLE, so when torch is imported their CPU kernels are replaced by numpy's (`exact_math`). And
 MKL's COMPATIBLE GEMMs are SSE2 code (its AVX2 branch depends on the CPU's vendor), so torch's `mm`, `addmm`, `bmm`
-and `baddbmm` go to numpy's OpenBLAS, whose Haswell kernels are chosen by name (`exact_matmul`).
+and `baddbmm` go to `fma_gemm`, whose kernels give the same bits at AVX2 and at AVX-512 width (`exact_matmul`).
 
 `CLODS_BENCH_DETERMINISTIC=0` (or `clods-bench --no-deterministic`) leaves every library on the host's own
 (fastest) paths; records and caches made that way are kept apart from deterministic ones.
@@ -41,7 +41,7 @@ SWITCH_ENV = "CLODS_BENCH_DETERMINISTIC"
 THREADS_ENV = "CLODS_BENCH_THREADS"
 BEFORE_PINS_ENV = "CLODS_BENCH_ENV_BEFORE_PINS"
 """Set by `apply()`: the pinned variables' values before the pins (JSON), for child processes' `host_environ()`."""
-PINS_VERSION = 3
+PINS_VERSION = 4
 """Bumped whenever the pins change: numbers made under other pins are not comparable bit for bit."""
 
 NUMERIC_MODULES = ("numpy", "torch", "numba", "scipy")
@@ -108,8 +108,8 @@ def pins(n_threads: int | None = None) -> dict[str, str]:
 
 
 def _openblas_core() -> str:
-    """OpenBLAS's kernel: Haswell's, which every AVX2 CPU runs, whatever the environment chose (torch's matrix products
-    go through it in deterministic mode, so another kernel would give other bits)."""
+    """OpenBLAS's kernel: Haswell's, which every AVX2 CPU runs, whatever the environment chose (numpy's and scipy's
+    products go through it, so another kernel would give other bits)."""
     return "Haswell"
 
 

@@ -1,19 +1,19 @@
-"""The matrix products deterministic mode takes away from MKL and computes with numpy on OpenBLAS's Haswell kernels.
+"""The matrix products deterministic mode takes away from MKL and computes with `fma_gemm`.
 
 Under `MKL_CBWR=COMPATIBLE` MKL's GEMMs give the same bits on every x86 CPU, but that branch is SSE2 code: torch's
 `mm` of a 9000x384 by 384x128 float32 matrix took 28 ms on one core of an Intel Xeon (Sapphire Rapids) against 7 ms
-on the host's own branch, and the graph networks' training 2.5-2.9x their host-path time. MKL's AVX2 branch is fast
-but gave other bits under QEMU's AMD EPYC Rome than on the Xeon. OpenBLAS's kernels are chosen by name instead of by
-CPU vendor (`OPENBLAS_CORETYPE=Haswell`, which deterministic mode sets): the same instructions on every AVX2 CPU, with
-blocking that is a compile-time constant of the kernel, hence the same bits (checked on the Xeon and under QEMU's
-Haswell, EPYC-Rome and Skylake-Server-v4), at 9.8 ms for the product above.
+on the host's own branch. MKL's AVX2 branch is fast but gave other bits under QEMU's AMD EPYC Rome than on the Xeon,
+and no BLAS gives the same bits at AVX2 and AVX-512 width (OpenBLAS's Haswell and SkylakeX kernels do not). So
+`fma_gemm` computes each element as one k-ordered chain of fused multiply-adds, which its AVX2 and AVX-512 kernels
+both do: an AVX-512 CPU runs at AVX-512 speed and gives an AVX2 CPU's bits.
 
 `mm`, `addmm`, `bmm` and `baddbmm` (out-of-place, in-place and `out=` forms) get CPU kernels that hand the product to
-`numpy.matmul` (one BLAS call per matrix; operands in neither row- nor column-major layout are copied first, so numpy
-never falls back to its loop); `addmm`/`baddbmm` then add `beta * self` in numpy. `nn.Linear` reaches them through
-`addmm`/`mm`, and autograd's backward formulas, which sit above the CPU kernels, call `mm` again. Convolutions stay
-on oneDNN (pinned to AVX2) and the rarer products (`mv`, `dot`, `addbmm`, ...) on MKL's COMPATIBLE branch: those
-are the same bits everywhere too, only slower.
+`fma_gemm.matmul` (float32 and float64; numpy's matmul for integers and complex numbers). `addmm` with a bias row
+and beta = alpha = 1 (`nn.Linear`) has the kernel add the row as it stores the product, the same rounding as a
+separate addition; other `beta * self` terms are added in numpy. `nn.Linear` reaches them through `addmm`/`mm`, and
+autograd's backward formulas, which sit above the CPU kernels, call `mm` again. Convolutions stay on oneDNN (pinned
+to AVX2) and the rarer products (`mv`, `dot`, `addbmm`, ...) on MKL's COMPATIBLE branch: those are the same bits
+everywhere too, only slower.
 """
 
 from __future__ import annotations
@@ -49,11 +49,33 @@ def _operand(t: Any) -> Any:
     return t.numpy()
 
 
-def _product(a: Any, b: Any) -> Any:
-    """`a @ b` for CPU tensors of two or three dimensions, as a numpy array (OpenBLAS under the pins)."""
+def _bias_row(self: Any, a: Any, b: Any, beta: Any, alpha: Any) -> Any:
+    """`self` as one row (numpy) when addmm's `beta * self + alpha * a @ b` is `a @ b + row` (nn.Linear's bias):
+    `fma_gemm` then adds it as it stores the product, which is the same addition without another pass; else None."""
+    if beta != 1 or alpha != 1 or a.dim() != 2 or self.dtype != a.dtype or self.dtype != b.dtype:
+        return None
+    n = b.shape[-1]
+    if self.dim() == 1 and self.shape[0] == n:
+        return self.detach().resolve_conj().resolve_neg().contiguous().numpy()
+    if self.dim() == 2 and self.shape[-1] == n and (self.shape[0] == 1 or self.stride(0) == 0):
+        return self.detach().resolve_conj().resolve_neg()[0].contiguous().numpy()
+    return None
+
+
+def _product(a: Any, b: Any, row: Any = None) -> Any:
+    """`a @ b (+ row)` for CPU tensors of two or three dimensions, as a numpy array: `fma_gemm`'s k-ordered chains of
+    fused multiply-adds for float32 and float64, numpy for the other dtypes (integers are exact anyway)."""
     import numpy as np
 
-    return np.matmul(_operand(a), _operand(b))
+    from clods_bench import fma_gemm
+
+    import torch
+
+    x, y = _operand(a), _operand(b)
+    if x.dtype == y.dtype and x.dtype.type in fma_gemm.DTYPES:
+        return fma_gemm.matmul(x, y, row, threads=torch.get_num_threads())
+    out = np.matmul(x, y)
+    return out if row is None else np.add(out, row, out=out)
 
 
 def _combine(product: Any, self: Any, beta: Any, alpha: Any, dtype: Any) -> Any:
@@ -107,6 +129,9 @@ def bmm(a: Any, b: Any) -> Any:
 def addmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
     """`beta * self + alpha * (a @ b)`, `self` broadcast to the product's shape."""
     _check("addmm", a, b, 2)
+    row = _bias_row(self, a, b, beta, alpha)
+    if row is not None and tuple(self.shape) in ((a.shape[0], b.shape[1]), (b.shape[1],), (1, b.shape[1])):
+        return _combine(_product(a, b, row), None, 0, 1, a.dtype)
     return _combine(_product(a, b), self, beta, alpha, a.dtype)
 
 

@@ -1,10 +1,11 @@
-"""The kernels deterministic mode puts under torch's mm, addmm, bmm and baddbmm: numpy's matmul on OpenBLAS's Haswell
-kernels.
+"""The kernels deterministic mode puts under torch's mm, addmm, bmm and baddbmm: `fma_gemm`'s k-ordered chains of
+fused multiply-adds.
 
 The test session runs in deterministic mode (`tests/test_deterministic_mode.py` asserts it), so torch's products here
-are the replacements. References: numpy's own matmul (the same bits, every form and layout), `math.fsum` of the
-products (correctly rounded sums, no BLAS), autograd's gradients against finite differences, and fresh interpreters
-for what the host's environment may not change.
+are the replacements. References: `fma_gemm.matmul` on the same values (the same bits, every form and layout; it is
+checked against exact arithmetic in `tests/test_fma_gemm.py`), `math.fsum` of the products (correctly rounded sums),
+autograd's gradients against finite differences, and fresh interpreters for what the host's environment may not
+change.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import pytest
 import torch
 
 from clods_bench import deterministic_mode as dm
-from clods_bench import exact_matmul
+from clods_bench import exact_matmul, fma_gemm
 
 _G = torch.Generator().manual_seed(11)
 
@@ -43,14 +44,15 @@ def _layouts(t: torch.Tensor) -> dict[str, torch.Tensor]:
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_mm_and_bmm_give_numpys_bits_in_every_layout(dtype: torch.dtype) -> None:
+def test_mm_and_bmm_give_fma_gemms_bits_in_every_layout(dtype: torch.dtype) -> None:
     a, b = _randn(37, 129, dtype=dtype), _randn(129, 18, dtype=dtype)
-    want = np.matmul(a.numpy(), b.numpy())
+    want = fma_gemm.matmul(a.numpy(), b.numpy())
+    assert not np.array_equal(want, np.matmul(a.numpy(), b.numpy()))  # not a BLAS's bits: the test can tell
     for name_a, la in _layouts(a).items():
         for name_b, lb in _layouts(b).items():
             assert torch.equal(torch.mm(la, lb), torch.from_numpy(want)), (name_a, name_b)
     x, y = _randn(3, 9, 65, dtype=dtype), _randn(3, 65, 4, dtype=dtype)
-    batched = torch.from_numpy(np.matmul(x.numpy(), y.numpy()))
+    batched = torch.from_numpy(fma_gemm.matmul(x.numpy(), y.numpy()))
     assert torch.equal(torch.bmm(x, y), batched)
     assert torch.equal(torch.bmm(x.transpose(1, 2).contiguous().transpose(1, 2), y), batched)
     assert torch.equal(torch.matmul(x, y), batched)
@@ -72,7 +74,7 @@ def test_products_are_sums_of_products_to_a_few_ulps() -> None:
 def test_addmm_and_baddbmm_forms_follow_atens_definition() -> None:
     """beta * self + alpha * (a @ b), `self` broadcast; with beta = 0 a NaN in `self` does not propagate."""
     a, b, bias = _randn(20, 33), _randn(33, 7), _randn(7)
-    prod = np.matmul(a.numpy(), b.numpy())
+    prod = fma_gemm.matmul(a.numpy(), b.numpy())
     assert torch.equal(torch.addmm(bias, a, b), torch.from_numpy(prod + bias.numpy()))
     want = prod * np.float32(0.5) + bias.numpy() * np.float32(2.0)
     assert torch.equal(torch.addmm(bias, a, b, beta=2.0, alpha=0.5), torch.from_numpy(want))
@@ -86,12 +88,12 @@ def test_addmm_and_baddbmm_forms_follow_atens_definition() -> None:
     lin = torch.nn.functional.linear(a, b.t().contiguous(), bias)  # nn.Linear's route
     assert torch.equal(lin, torch.from_numpy(prod + bias.numpy()))
     x, y, base = _randn(2, 4, 6), _randn(2, 6, 3), _randn(2, 4, 3)
-    want3 = np.matmul(x.numpy(), y.numpy()) * np.float32(3.0) + base.numpy()
+    want3 = fma_gemm.matmul(x.numpy(), y.numpy()) * np.float32(3.0) + base.numpy()
     assert torch.equal(torch.baddbmm(base, x, y, alpha=3.0), torch.from_numpy(want3))
     assert torch.equal(base.clone().baddbmm_(x, y, alpha=3.0), torch.from_numpy(want3))
     out3 = torch.empty(1)
     torch.bmm(x, y, out=out3)
-    assert torch.equal(out3, torch.from_numpy(np.matmul(x.numpy(), y.numpy())))
+    assert torch.equal(out3, torch.from_numpy(fma_gemm.matmul(x.numpy(), y.numpy())))
 
 
 def test_gradients_match_finite_differences() -> None:
@@ -110,7 +112,7 @@ def test_other_dtypes_and_empty_products() -> None:
     a, b = _randn(8, 16), _randn(16, 4)
     for low in (torch.float16, torch.bfloat16):
         got = torch.mm(a.to(low), b.to(low))
-        want = np.matmul(a.to(low).float().numpy(), b.to(low).float().numpy())
+        want = fma_gemm.matmul(a.to(low).float().numpy(), b.to(low).float().numpy())
         assert got.dtype == low and torch.equal(got, torch.from_numpy(want).to(low))
     ints = torch.arange(12).reshape(3, 4)
     assert torch.equal(torch.mm(ints, ints.t()), torch.from_numpy(ints.numpy() @ ints.numpy().T))
@@ -138,11 +140,12 @@ def _product_digest(**env: str) -> str:
     return out.stdout.strip().splitlines()[-1]
 
 
-@pytest.mark.skipif("avx2" not in (dm.cpu_flags() or set()), reason="OpenBLAS's Haswell kernel needs an AVX2 CPU")
-def test_the_hosts_blas_settings_do_not_reach_the_product() -> None:
-    """A host's own OPENBLAS_CORETYPE (Prescott's SSE kernel, or on an AVX-512 CPU SkylakeX's, gives other bits than
-    Haswell's) does not change deterministic mode's products: the mode sets OpenBLAS's kernel itself."""
+@pytest.mark.skipif("avx2" not in (dm.cpu_flags() or set()), reason="the kernels need an AVX2 CPU")
+def test_the_hosts_settings_do_not_reach_the_product() -> None:
+    """Neither a host's own OPENBLAS_CORETYPE (Prescott's SSE kernel) nor the kernels' instruction set (AVX2 forced on
+    an AVX-512 CPU) changes deterministic mode's products, nn.Linear's folded bias included."""
     pinned = _product_digest()
     assert _product_digest(OPENBLAS_CORETYPE="Prescott") == pinned
-    if "avx512f" in (dm.cpu_flags() or set()):
-        assert _product_digest(OPENBLAS_CORETYPE="SkylakeX") == pinned
+    assert _product_digest(**{fma_gemm.ISA_ENV: "avx2"}) == pinned
+    if fma_gemm.host_isa() == "avx512":
+        assert _product_digest(**{fma_gemm.ISA_ENV: "avx512"}) == pinned

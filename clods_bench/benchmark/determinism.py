@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench import exact_math, exact_matmul
+from clods_bench import exact_math, exact_matmul, fma_gemm
 from clods_bench.errors import ClodsError
 
 # The runner sets these before each seed; a seed's numbers then depend only on (config, seed, machine, thread count).
@@ -104,6 +104,7 @@ def effective_paths() -> dict[str, Any]:
         "mkl_cbwr": os.environ.get("MKL_CBWR", "host"),
         "onednn_max_isa": os.environ.get("ONEDNN_MAX_CPU_ISA", "host"),
         "torch_functions_on_numpy": list(exact_math.REPLACED) if exact_math.installed() else [],
-        "torch_products_on_openblas": list(exact_matmul.REPLACED) if exact_matmul.installed() else [],
+        "torch_products_on_fma_gemm": list(exact_matmul.REPLACED) if exact_matmul.installed() else [],
+        "fma_gemm_isa": fma_gemm.host_isa() if exact_matmul.installed() else "not used",
         "openblas_core": openblas_core(),
     }

@@ -36,7 +36,7 @@ got = dict(re.findall(r"^probe (.+?): ([0-9a-f]{16})", open(sys.argv[1]).read(),
 for family, digest in want.items():
     print(f"{family}: {'same' if got.get(family) == digest else 'OTHER'} ({got.get(family)} here, {digest} committed)")
 EOF
-$PY -m pytest -q -p no:cacheprovider tests/test_deterministic_mode.py tests/test_exact_math.py tests/test_exact_matmul.py \
+$PY -m pytest -q -p no:cacheprovider tests/test_deterministic_mode.py tests/test_exact_math.py tests/test_exact_matmul.py tests/test_fma_gemm.py \
   tests/test_truncated_normal.py 2>&1 | tail -n 15 | tee "$OUT/pytest.txt"
 left=$((LIMIT - SECONDS))
 echo "ci plan, seed 0: $JOBS jobs, budget $((left - 60)) s (start $SECONDS s)" | tee "$OUT/check.txt"
