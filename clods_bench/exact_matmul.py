@@ -52,13 +52,15 @@ def _operand(t: Any) -> Any:
 def _bias_row(self: Any, a: Any, b: Any, beta: Any, alpha: Any) -> Any:
     """`self` as one row (numpy) when addmm's `beta * self + alpha * a @ b` is `a @ b + row` (nn.Linear's bias):
     `fma_gemm` then adds it as it stores the product, which is the same addition without another pass; else None."""
-    if beta != 1 or alpha != 1 or a.dim() != 2 or self.dtype != a.dtype or self.dtype != b.dtype:
+    import torch
+
+    if beta != 1 or alpha != 1 or a.dim() != 2 or not (self.dtype == a.dtype == b.dtype) or self.dtype not in (torch.float32, torch.float64):
         return None
     n = b.shape[-1]
     if self.dim() == 1 and self.shape[0] == n:
-        return self.detach().resolve_conj().resolve_neg().contiguous().numpy()
-    if self.dim() == 2 and self.shape[-1] == n and (self.shape[0] == 1 or self.stride(0) == 0):
-        return self.detach().resolve_conj().resolve_neg()[0].contiguous().numpy()
+        return self.detach().resolve_neg().contiguous().numpy()
+    if self.dim() == 2 and self.shape[-1] == n and (self.shape[0] == 1 or (self.shape[0] == a.shape[0] and self.stride(0) == 0)):
+        return self.detach().resolve_neg()[0].contiguous().numpy()
     return None
 
 
@@ -130,7 +132,7 @@ def addmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
     """`beta * self + alpha * (a @ b)`, `self` broadcast to the product's shape."""
     _check("addmm", a, b, 2)
     row = _bias_row(self, a, b, beta, alpha)
-    if row is not None and tuple(self.shape) in ((a.shape[0], b.shape[1]), (b.shape[1],), (1, b.shape[1])):
+    if row is not None:
         return _combine(_product(a, b, row), None, 0, 1, a.dtype)
     return _combine(_product(a, b), self, beta, alpha, a.dtype)
 

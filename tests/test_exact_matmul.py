@@ -114,6 +114,9 @@ def test_other_dtypes_and_empty_products() -> None:
         got = torch.mm(a.to(low), b.to(low))
         want = fma_gemm.matmul(a.to(low).float().numpy(), b.to(low).float().numpy())
         assert got.dtype == low and torch.equal(got, torch.from_numpy(want).to(low))
+        bias = _randn(4).to(low)  # nn.Linear's route in half precision: the bias is added in float32, then rounded
+        lin = torch.nn.functional.linear(a.to(low), b.t().contiguous().to(low), bias)
+        assert lin.dtype == low and torch.equal(lin, torch.from_numpy(want + bias.float().numpy()).to(low))
     ints = torch.arange(12).reshape(3, 4)
     assert torch.equal(torch.mm(ints, ints.t()), torch.from_numpy(ints.numpy() @ ints.numpy().T))
     assert torch.equal(torch.mm(torch.zeros(3, 0), torch.zeros(0, 2)), torch.zeros(3, 2))
