@@ -1,7 +1,7 @@
 # Sourced at the start of a device call (carry [".whl"], made here by examples/gpu/make_whl.sh):
 #   source examples/gpu/device_setup.sh || exit 1
 # installs .whl's wheels into /tmp/site, puts LPIPS's weights on the path, installs clods-bench (editable, no deps:
-# the machines' image has torch and the rest) and builds gsplat's CUDA kernels (71-89 s on the H200s of sessions 34-35;
+# the machines' image has torch and the rest) and builds gsplat's CUDA kernels (71-89 s on the H200s of 2026-11-27;
 # torch keeps the build for later calls on the same warm machine; NO_GSPLAT=1 skips it). Prints what it found.
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || return 1
 export PYTHONPATH=/tmp/site:$PWD/.whl/lpips_site PYTHONUNBUFFERED=1 TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}

@@ -11,7 +11,7 @@
 #   sims:  the learned simulators and video predictors on CUDA against the CPU, then MGN's `small` training speed on both
 #          (data.frames=on_demand: the stability task reads meshes only), and `bench sim --device cuda` (CPU vs GPU in one run)
 #   infer: `clods-bench bench infer --device cuda` at `ci` and `paper` (CloDS: MGN step + SMGS on gsplat, against the
-#          physics solver + rasterizer on the CPU; the inference-time figure's GPU numbers, issue 15)
+#          physics solver + rasterizer on the CPU; the inference-time figure's GPU numbers)
 # Logs go to $OUT (default ./gpu-check). Needs: clods-bench installed, gsplat, torch with CUDA, nvcc.
 set -uo pipefail
 OUT=${OUT:-gpu-check}

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One paper-size trajectory through data generation and CloDS stages 1-3, each stage timed (issue 14, item 5).
+# One paper-size trajectory through data generation and CloDS stages 1-3, each stage timed.
 #
 # PRESET (default paper) sets the sizes: FLAGSIMPLE-sized flag, 401 frames, 30 cameras (25 fitted), 800 px. Two
 # training trajectories (the fewest a split allows) and one test trajectory, frames rendered on demand

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The video-prediction rows that need a GPU at `small` (issue 15): Table 4's pixel-space predictors, one after another
+# The video-prediction rows that need a GPU at `small`: Table 4's pixel-space predictors, one after another
 # (packing them on one GPU gained nothing on the sixth visit), seed 0, through `reproduce` so the records are the
 # plan's. Resumable: a second call on the same warm machine continues from the checkpoints (every 500 steps).
 #

@@ -28,7 +28,7 @@ from clods_bench.threads import torch_threads
 if TYPE_CHECKING:
     from rich.console import Console
 
-STAGE2_TARGET_MS = 5.0  # ms per stage-2 iteration at the ci preset (issue 14)
+STAGE2_TARGET_MS = 5.0  # ms per stage-2 iteration at the ci preset
 
 
 def _time_render(renderer, verts: torch.Tensor, cams: list, repeats: int) -> float:

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from rich.console import Console
     from rich.table import Table
 
-SPEEDUP_TARGET = 30.0  # forward+backward of 'cpu' against 'reference' (issue 14; 10x before)
+SPEEDUP_TARGET = 30.0  # forward+backward of 'cpu' against 'reference' (10x before)
 F32_TOL = 1e-3  # max |float32 render - float64 render| of the same Gaussians
 AGREEMENT_TOL = 1e-5  # max |cpu - reference| on images; relative on gradients
 
