@@ -226,16 +226,29 @@ def missing_cpu_features() -> list[str]:
     return [f for f in ("avx2", "fma", "f16c") if f not in flags]
 
 
-def cpu_model() -> str:
-    """The CPU's model name (Linux /proc/cpuinfo), else `platform.processor()`."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The CPU's model name with its family, model and widest vector set (Linux /proc/cpuinfo, or the text given),
+    else `platform.processor()`: virtual machines often report only "AMD EPYC" or "Intel Xeon Processor"."""
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+                cpuinfo = fh.read()
+        except OSError:
+            cpuinfo = ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            break  # the first processor is enough
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    name = fields.get("model name")
+    if not name:
+        return platform.processor() or platform.machine()
+    flags = set(fields.get("flags", "").split())
+    width = "AVX-512" if {"avx512f", "avx512dq", "avx512bw", "avx512vl"} <= flags else "AVX2" if "avx2" in flags else "no AVX2"
+    family, model = fields.get("cpu family"), fields.get("model")
+    where = f"family {family}, model {model}, " if family and model else ""
+    return f"{name} ({where}{width})"
 
 
 def numeric_mode() -> str:
@@ -243,13 +256,24 @@ def numeric_mode() -> str:
     return "deterministic" if enabled() else "host"
 
 
+def _product_kernels() -> str:
+    """The instruction set of `fma_gemm`'s kernels in use (informative: both give the same bits)."""
+    from clods_bench import fma_gemm
+
+    try:
+        return fma_gemm.host_isa()
+    except (ImportError, ValueError) as exc:
+        return f"unknown ({exc})"
+
+
 def describe() -> dict[str, Any]:
-    """What a record says of the numeric paths it was made with (no library is imported)."""
+    """What a record says of the numeric paths it was made with (in deterministic mode this loads numpy and
+    llvmlite, after the pins, to name the product kernels' instruction set)."""
     out: dict[str, Any] = {"mode": numeric_mode(), "cpu": cpu_model()}
     if enabled():
         from clods_bench import exact_math, exact_matmul
 
         out.update({"pins_version": PINS_VERSION, "threads": threads(), "exact_math": list(exact_math.REPLACED),
-                    "exact_matmul": list(exact_matmul.REPLACED),
+                    "exact_matmul": list(exact_matmul.REPLACED), "product_kernels": _product_kernels(),
                     "pins": {k: os.environ.get(k) for k in sorted(pins())}})  # fmt: skip
     return out

@@ -94,6 +94,24 @@ def test_a_cpu_without_avx2_keeps_openblass_own_kernel(monkeypatch: pytest.Monke
     assert "OPENBLAS_CORETYPE" not in dm.pins()
 
 
+_EPYC = "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 25\nmodel\t\t: 17\nmodel name\t: AMD EPYC\nflags\t\t: fpu avx2 fma f16c {}\n\nprocessor\t: 1\nmodel name\t: other\n"
+
+
+def test_the_cpu_is_named_with_family_model_and_vector_width() -> None:
+    """A virtual machine's "AMD EPYC" alone names no microarchitecture; records say which one made them."""
+    assert dm.cpu_model(_EPYC.format("avx512f avx512dq avx512bw avx512vl")) == "AMD EPYC (family 25, model 17, AVX-512)"
+    assert dm.cpu_model(_EPYC.format("avx512f")) == "AMD EPYC (family 25, model 17, AVX2)"
+    assert dm.cpu_model(_EPYC.replace(" avx2", "").format("")) == "AMD EPYC (family 25, model 17, no AVX2)"
+
+
+def test_records_name_the_product_kernels_in_use(monkeypatch: pytest.MonkeyPatch) -> None:
+    from clods_bench import fma_gemm
+
+    assert dm.describe()["product_kernels"] == fma_gemm.host_isa()
+    monkeypatch.setenv("CLODS_BENCH_GEMM_ISA", "avx2")
+    assert dm.describe()["product_kernels"] == "avx2"
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("qemu-x86_64") is None or not X86_AVX2, reason="needs qemu-user (apt-get install qemu-user) on an x86-64 AVX2 host")
 @pytest.mark.parametrize("cpu", ["Haswell", "EPYC-Rome", "Skylake-Server-v4"])
