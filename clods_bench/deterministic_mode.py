@@ -204,16 +204,27 @@ def loaded_too_early() -> list[str]:
     return list(_state["late"])
 
 
+def _first_processor(cpuinfo: str | None = None) -> dict[str, str] | None:
+    """The fields of the first processor in /proc/cpuinfo (Linux) or in the text given; None where unreadable."""
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+                cpuinfo = fh.read()
+        except OSError:
+            return None
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            break
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
 def cpu_flags() -> set[str] | None:
     """The CPU's feature flags from /proc/cpuinfo (Linux), or None where they cannot be read."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.startswith("flags"):
-                    return set(line.split(":", 1)[1].split())
-    except OSError:
-        return None
-    return None
+    fields = _first_processor()
+    return set(fields["flags"].split()) if fields and "flags" in fields else None
 
 
 def missing_cpu_features() -> list[str]:
@@ -229,18 +240,7 @@ def missing_cpu_features() -> list[str]:
 def cpu_model(cpuinfo: str | None = None) -> str:
     """The CPU's model name with its family, model and widest vector set (Linux /proc/cpuinfo, or the text given),
     else `platform.processor()`: virtual machines often report only "AMD EPYC" or "Intel Xeon Processor"."""
-    if cpuinfo is None:
-        try:
-            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-                cpuinfo = fh.read()
-        except OSError:
-            cpuinfo = ""
-    fields: dict[str, str] = {}
-    for line in cpuinfo.splitlines():
-        if not line.strip():
-            break  # the first processor is enough
-        key, _, value = line.partition(":")
-        fields.setdefault(key.strip(), value.strip())
+    fields = _first_processor(cpuinfo) or {}
     name = fields.get("model name")
     if not name:
         return platform.processor() or platform.machine()
@@ -258,9 +258,9 @@ def numeric_mode() -> str:
 
 def _product_kernels() -> str:
     """The instruction set of `fma_gemm`'s kernels in use (informative: both give the same bits)."""
-    from clods_bench import fma_gemm
-
     try:
+        from clods_bench import fma_gemm
+
         return fma_gemm.host_isa()
     except (ImportError, ValueError) as exc:
         return f"unknown ({exc})"
