@@ -26,7 +26,7 @@ from rich.progress import Progress
 
 from clods_bench import deterministic_mode
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
-from clods_bench.benchmark.records import load_seed_result, record_dir
+from clods_bench.benchmark.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.errors import ClodsError
 from clods_bench.threads import MAX_THREADS_ENV
 
@@ -387,7 +387,7 @@ def run_configs(
     """
     if deadline is not None and executor.name != "local":  # before any dataset is generated
         raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
-    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_task, task_datasets
+    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_data_digests, run_task, task_datasets
 
     for name, cfg in configs:
         check_plugins(cfg, registry)
@@ -402,6 +402,13 @@ def run_configs(
                 console.print(f"[dim]dataset {ddir}[/dim]")
                 ensure_complete_dataset(dataclasses.replace(cfg, data=d), registry, cfg.progress, executor=executor if parallel else None)
 
+    def reusable(cfg: RunConfig, seed: int) -> bool:
+        """Whether the seed has a result to reuse (one made from other data or under other pins is an error, here
+        before any job starts)."""
+        if load_seed_result(record_dir(cfg), seed) is None:
+            return False
+        return reusable_seed_result(record_dir(cfg), seed, run_data_digests(cfg, registry)) is not None
+
     # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
     # runs together instead of two seeds of one run that would wait on each other's shared cached stages.
     jobs = []
@@ -411,7 +418,7 @@ def run_configs(
             if k >= len(cfg.seeds):
                 continue
             seed = cfg.seeds[k]
-            if load_seed_result(record_dir(cfg), seed) is None:
+            if not reusable(cfg, seed):
                 worker_cfg = cfg.to_dict()
                 worker_cfg["progress"] = False if parallel else cfg.progress
                 jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))

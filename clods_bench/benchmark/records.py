@@ -79,8 +79,34 @@ def load_seed_result(rdir: Path, seed: int) -> dict[str, Any] | None:
         return None  # a torn file cannot happen with atomic writes; treat anything odd as unfinished
 
 
-def save_seed_result(rdir: Path, seed: int, result: TaskResult) -> dict[str, Any]:
+def reusable_seed_result(rdir: Path, seed: int, data_digests: Sequence[str] | None = None) -> dict[str, Any] | None:
+    """A finished seed's result that a run may reuse, or None when it has not finished. A result made from other data
+    (its recorded content digests differ from `data_digests`, those of the run's datasets now) or under other numeric
+    pins is a ClodsError: reusing it would put numbers of another computation in the table. Results written before
+    these fields were recorded cannot be told apart and are reused."""
+    done = load_seed_result(rdir, seed)
+    if done is None:
+        return None
+    path = seed_result_path(rdir, seed)
+    hint = "move its record folder away (or run with another runs_dir) to rerun it; `clods-bench tables` still reads it"
+    had = done.get("data_digests")
+    if data_digests is not None and isinstance(had, list) and list(had) != list(data_digests):
+        raise ClodsError(f"seed {seed}'s result was made from other data (dataset content {', '.join(map(str, had))}, now "
+                         f"{', '.join(data_digests)}): the data generator or the dataset changed since", where=str(path), hint=hint)  # fmt: skip
+    numerics, now = done.get("numerics"), deterministic_mode.describe()
+    if isinstance(numerics, dict) and numerics.get("mode") == now.get("mode") == "deterministic":
+        was, current = numerics.get("pins_version"), now.get("pins_version")
+        if was is not None and was != current:
+            raise ClodsError(f"seed {seed}'s result was computed under numeric pins version {was}; this release computes with "
+                             f"version {current}, so a rerun gives other numbers", where=str(path), hint=hint)  # fmt: skip
+    return done
+
+
+def save_seed_result(rdir: Path, seed: int, result: TaskResult, data_digests: Sequence[str] | None = None) -> dict[str, Any]:
+    """Write a finished seed's result with its provenance: numeric mode and the content digests of the data it used."""
     payload = {"seed": seed, **asdict(result), "numerics": deterministic_mode.describe(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    if data_digests is not None:
+        payload["data_digests"] = list(data_digests)
     write_json(seed_result_path(rdir, seed), payload)
     return json.loads(json.dumps(payload, default=str))
 

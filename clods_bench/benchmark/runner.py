@@ -13,7 +13,7 @@ from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.config import RunConfig, save_config
 from clods_bench.benchmark.descriptors import TaskContext
 from clods_bench.benchmark.determinism import check_numeric_paths, seed_everything
-from clods_bench.benchmark.records import aggregate, load_seed_result, record_dir, save_seed_result
+from clods_bench.benchmark.records import aggregate, record_dir, reusable_seed_result, save_seed_result
 from clods_bench.benchmark.registry import Registry
 from clods_bench.datasets.digest import content_digest
 from clods_bench.datasets.store import DatasetStore
@@ -92,6 +92,12 @@ def resolve_plugin_configs(cfg: RunConfig, registry: Registry) -> RunConfig:
     return dataclasses.replace(cfg, **changes) if changes else cfg
 
 
+def run_data_digests(cfg: RunConfig, registry: Registry) -> list[str]:
+    """Content digests of the run's datasets (its own, then the task's extra ones), which must exist: what a seed's
+    result records, so that a later run can tell it was made from other data."""
+    return [content_digest(DatasetStore.open(d.dataset_dir())) for d in [cfg.data, *task_datasets(cfg, registry)]]
+
+
 def run_task(
     cfg: RunConfig,
     registry: Registry,
@@ -118,8 +124,9 @@ def run_task(
     run_timings["data_seconds"] = time.perf_counter() - t0
 
     per_seed = {}
+    data_digests = run_data_digests(cfg, registry)
     for seed in cfg.seeds:
-        done = load_seed_result(rdir, seed)
+        done = reusable_seed_result(rdir, seed, data_digests)
         if done is not None:
             console.print(f"[dim]seed {seed}: finished earlier, reusing {rdir / f'seed_{seed}'}[/dim]")
             per_seed[seed] = done
@@ -130,13 +137,13 @@ def run_task(
         seed_everything(seed)
         t0, c0 = time.perf_counter(), time.process_time()
         with stage_digests.collecting() as digests:
-            for d in [cfg.data, *task_datasets(cfg, registry)]:
-                stage_digests.record("data", content_digest(DatasetStore.open(d.dataset_dir())))
+            for digest in data_digests:
+                stage_digests.record("data", digest)
             result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))
             stage_digests.record("score", result.metrics)
         result.extra["stage_digests"] = digests.result()
         result.timings.setdefault("seed_seconds", time.perf_counter() - t0)
         result.timings.setdefault("seed_cpu_seconds", time.process_time() - c0)  # this process's CPU time: robust to a loaded host
-        per_seed[seed] = save_seed_result(rdir, seed, result)
+        per_seed[seed] = save_seed_result(rdir, seed, result, data_digests)
     aggregate(cfg, rdir, per_seed, run_timings)
     return rdir
