@@ -88,7 +88,7 @@ def reusable_seed_result(rdir: Path, seed: int, data_digests: Sequence[str] | No
     if done is None:
         return None
     path = seed_result_path(rdir, seed)
-    hint = "move its record folder away (or run with another runs_dir) to rerun it; `clods-bench tables` still reads it"
+    hint = "to rerun it, move its record folder away or use another runs_dir; `clods-bench tables` still reads it"
     had = done.get("data_digests")
     if data_digests is not None and isinstance(had, list) and list(had) != list(data_digests):
         raise ClodsError(f"seed {seed}'s result was made from other data (dataset content {', '.join(map(str, had))}, now "
