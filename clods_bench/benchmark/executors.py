@@ -402,12 +402,17 @@ def run_configs(
                 console.print(f"[dim]dataset {ddir}[/dim]")
                 ensure_complete_dataset(dataclasses.replace(cfg, data=d), registry, cfg.progress, executor=executor if parallel else None)
 
-    def reusable(cfg: RunConfig, seed: int) -> bool:
+    digests: dict[str, list[str]] = {}  # per run, read only for runs with a finished seed
+
+    def reusable(name: str, cfg: RunConfig, seed: int) -> bool:
         """Whether the seed has a result to reuse (one made from other data or under other pins is an error, here
         before any job starts)."""
-        if load_seed_result(record_dir(cfg), seed) is None:
+        rdir = record_dir(cfg)
+        if load_seed_result(rdir, seed) is None:
             return False
-        return reusable_seed_result(record_dir(cfg), seed, run_data_digests(cfg, registry)) is not None
+        if name not in digests:
+            digests[name] = run_data_digests(cfg, registry)
+        return reusable_seed_result(rdir, seed, digests[name]) is not None
 
     # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
     # runs together instead of two seeds of one run that would wait on each other's shared cached stages.
@@ -418,7 +423,7 @@ def run_configs(
             if k >= len(cfg.seeds):
                 continue
             seed = cfg.seeds[k]
-            if not reusable(cfg, seed):
+            if not reusable(name, cfg, seed):
                 worker_cfg = cfg.to_dict()
                 worker_cfg["progress"] = False if parallel else cfg.progress
                 jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))

@@ -67,14 +67,18 @@ def test_a_result_from_other_data_is_an_error_naming_it(finished) -> None:
         run_configs([("row", cfg)], LocalExecutor(jobs=1), default_registry(), Console(quiet=True))
 
 
-def test_a_result_under_other_pins_is_an_error(finished) -> None:
+def test_a_result_under_other_pins_is_an_error(finished, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg, path = finished
-    numerics = json.loads(path.read_text())["numerics"]
-    if numerics.get("mode") != "deterministic":
-        pytest.skip("deterministic mode is off in this process")
-    _edit(path, numerics={**numerics, "pins_version": deterministic_mode.PINS_VERSION - 1})
-    with pytest.raises(ClodsError, match=f"pins version {deterministic_mode.PINS_VERSION - 1}"):
+    now = {"mode": "deterministic", "pins_version": deterministic_mode.PINS_VERSION}
+    monkeypatch.setattr(deterministic_mode, "describe", lambda: dict(now))  # deterministic whatever this process runs
+    older = deterministic_mode.PINS_VERSION - 1
+    _edit(path, numerics={"mode": "deterministic", "pins_version": now["pins_version"]})
+    run_task(cfg, default_registry(), Console(quiet=True))  # the same pins: reused
+    _edit(path, numerics={"mode": "deterministic", "pins_version": older})
+    with pytest.raises(ClodsError, match=f"pins version {older}; this release computes with version {now['pins_version']}"):
         run_task(cfg, default_registry(), Console(quiet=True))
+    _edit(path, numerics={"mode": "host", "pins_version": None})
+    run_task(cfg, default_registry(), Console(quiet=True))  # a host-mode result has no pins to compare
 
 
 def test_a_result_written_before_provenance_was_recorded_is_reused(finished) -> None:
