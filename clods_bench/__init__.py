@@ -1,8 +1,7 @@
-"""clods-bench: a plugin-based benchmark for learning cloth dynamics from multi-view video."""
+"""clods-bench: a plugin-based benchmark for learning cloth dynamics from multi-view video.
 
-from clods_bench import deterministic_mode as _deterministic_mode
+Importing it changes nothing in the process: exact numerics are a scope (`clods_bench.numerics.exact()`) that the
+CLI, the runner and its workers enter.
+"""
 
 __version__ = "0.2.0"
-
-# Before anything imports numpy, torch or numba: pin their floating-point paths (see `deterministic_mode`).
-_deterministic_mode.apply()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
-from clods_bench.deterministic_mode import cpu_model
+from clods_bench.numerics import cpu_model
 
 SOLVER_TARGET_S = 60.0  # 400 steps of the 1579-node flag on 2 cores
 CONTACT_TARGET_RATIO = 2.0  # contact with an obstacle may at most double the solver's time per step

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from rich.console import Console
 from rich.table import Table
@@ -33,8 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     parser.add_argument(
         "--no-deterministic", action="store_true",
-        help="use the host CPU's own (fastest) floating-point paths; by default every command pins them so that it gives the "
-             "same bits on every x86-64 CPU with AVX2 (same as CLODS_BENCH_DETERMINISTIC=0; see `clods-bench numerics`)",
+        help="use the host CPU's own (fastest) floating-point paths; by default every computing command runs with exact "
+             "numerics, which give the same bits on every x86-64 CPU with AVX2 (same as CLODS_BENCH_DETERMINISTIC=0; see "
+             "`clods-bench numerics`)",
     )  # fmt: skip
     parser.add_argument(
         "--strict-plugins", action="store_true",
@@ -249,7 +251,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_numerics(args: argparse.Namespace) -> int:
-    from clods_bench import deterministic_mode as dm
+    from clods_bench import numerics as dm
 
     if args.export:
         for key, value in sorted(dm.pins().items()):
@@ -260,11 +262,11 @@ def cmd_numerics(args: argparse.Namespace) -> int:
 
     info = dm.describe()
     console.print(f"mode: {info['mode']} (CPU: {info['cpu']}; pins version {dm.PINS_VERSION}, {dm.threads()} thread(s) per job)"
-                  if dm.enabled() else f"mode: host paths (CPU: {info['cpu']}); deterministic mode is off ({dm.SWITCH_ENV}=0)", highlight=False)  # fmt: skip
+                  if dm.active() else f"mode: host paths (CPU: {info['cpu']}); exact numerics are off", highlight=False)  # fmt: skip
     for key, value in sorted((info.get("pins") or {}).items()):
         console.print(f"  {key}={value}", highlight=False, markup=False)
     missing = dm.missing_cpu_features()
-    if dm.enabled() and missing:
+    if dm.requested() and missing:
         console.print(f"this CPU lacks {', '.join(missing)}: deterministic runs stop with an error here", highlight=False)
     console.print("in use: " + ", ".join(f"{k}={v}" for k, v in effective_paths().items()), highlight=False)
     if args.probe:
@@ -670,38 +672,59 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-COMPUTING_COMMANDS = ("data", "run", "reproduce", "bench")
-"""Commands whose numbers deterministic mode pins: they stop on a CPU it cannot pin (no AVX2)."""
+SCOPED_COMMANDS = ("data", "run", "reproduce", "bench", "numerics")
+"""Commands that compute with the numeric libraries: they run inside the exact scope unless --no-deterministic."""
 
 
-def _rerun_on_host_paths(argv: Sequence[str] | None) -> None:
-    """`--no-deterministic` in a process whose libraries are pinned already: run the same command in a fresh
-    interpreter with the pins undone (they are read once, when the libraries load)."""
+def _exact_scope(args: argparse.Namespace) -> Any:
+    """The exact scope for a computing command (None for the others, and with --no-deterministic or
+    CLODS_BENCH_DETERMINISTIC=0)."""
+    from clods_bench import numerics
+
+    if args.command not in SCOPED_COMMANDS or args.no_deterministic or not numerics.requested():
+        return None
+    if args.command == "numerics" and (args.export or numerics.missing_cpu_features()):
+        return None  # `numerics` still reports on a CPU the scope cannot pin
+    return numerics.exact()
+
+
+@contextlib.contextmanager
+def _switch_for_workers(off: bool) -> Iterator[None]:
+    """With --no-deterministic, $CLODS_BENCH_DETERMINISTIC=0 for the command's duration: its worker processes and
+    runner then stay on the host's paths too."""
     import os
 
-    from clods_bench import deterministic_mode as dm
+    from clods_bench.numerics import SWITCH_ENV
 
-    args = list(sys.argv[1:] if argv is None else argv)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execve(sys.executable, [sys.executable, "-m", "clods_bench.benchmark.cli", *args], dm.host_environ())
+    before = os.environ.get(SWITCH_ENV)
+    if off:
+        os.environ[SWITCH_ENV] = "0"
+    try:
+        yield
+    finally:
+        if off:
+            if before is None:
+                os.environ.pop(SWITCH_ENV, None)
+            else:
+                os.environ[SWITCH_ENV] = before
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clods_bench import deterministic_mode as dm
+    from clods_bench import numerics
 
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--no-deterministic" not in argv and numerics.requested():
+        numerics.pin_environment()  # first: building the parser loads the plugins, and they load numpy
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.no_deterministic and dm.enabled():
-        _rerun_on_host_paths(argv)
     try:
-        if args.command in COMPUTING_COMMANDS:
-            from clods_bench.benchmark.determinism import check_numeric_paths
-
-            check_numeric_paths()
         from clods_bench.benchmark.plugin_report import plugin_options
 
-        with plugin_options(args.strict_plugins, err_console):
+        with _switch_for_workers(args.no_deterministic), contextlib.ExitStack() as stack:
+            scope = _exact_scope(args)
+            if scope is not None:
+                stack.enter_context(scope)
+            stack.enter_context(plugin_options(args.strict_plugins, err_console))
             return int(args.func(args) or 0)
     except ClodsError as exc:
         if args.debug:

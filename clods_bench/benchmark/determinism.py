@@ -8,8 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench import exact_math, exact_matmul, fma_gemm
-from clods_bench.errors import ClodsError
+from clods_bench.numerics import exact_math, exact_matmul, fma_gemm
 
 # The runner sets these before each seed; a seed's numbers then depend only on (config, seed, machine, thread count).
 SEED_ENV = "CLODS_BENCH_SEED"
@@ -33,32 +32,9 @@ def seed_everything(seed: int, torch_threads: int | None = None) -> None:
     torch.manual_seed(seed)
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
-    from clods_bench import deterministic_mode
-
-    if deterministic_mode.enabled() and hasattr(torch.backends.mkldnn, "deterministic"):
-        torch.backends.mkldnn.deterministic = True  # oneDNN's reductions in a fixed order whatever the thread count
     if torch.backends.cudnn.is_available():
         torch.backends.cudnn.deterministic = True
         torch.backends.cudnn.benchmark = False
-
-
-def check_numeric_paths() -> None:
-    """Raise a ClodsError when deterministic mode is on but cannot hold: a CPU without the pinned instruction set,
-    or numpy/torch/numba loaded before `clods_bench` set their pins. A no-op in host mode."""
-    from clods_bench import deterministic_mode as dm
-
-    if not dm.enabled():
-        return
-    hint = f"run with --no-deterministic (or {dm.SWITCH_ENV}=0): the host's own paths, whose numbers are not the committed tables' bits"
-    missing = dm.missing_cpu_features()
-    if missing:
-        raise ClodsError(f"deterministic mode pins AVX2 code paths, and this CPU ({dm.cpu_model()}) lacks {', '.join(missing)}", where="CPU", hint=hint)
-    late = dm.loaded_too_early()
-    if late:
-        raise ClodsError(
-            f"{', '.join(late)} loaded before clods_bench, so deterministic mode could not pin {'its' if len(late) == 1 else 'their'} floating-point paths",
-            where="import order", hint="import clods_bench first, or set the variables of `clods-bench numerics --export` before Python starts",
-        )  # fmt: skip
 
 
 def openblas_core() -> str:

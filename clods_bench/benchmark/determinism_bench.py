@@ -18,7 +18,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from clods_bench import deterministic_mode as dm
+from clods_bench import numerics as dm
 from clods_bench.errors import ClodsError
 
 _CHILD = """

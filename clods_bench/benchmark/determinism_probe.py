@@ -127,14 +127,17 @@ PROBES: dict[str, Callable[[Path], str]] = {"graph net": graph_net, "video predi
 
 
 def probe(families: tuple[str, ...] = FAMILIES) -> dict[str, dict[str, Any]]:
-    """{family: {'digest', 'seconds'}} of each family's tiny fit, every one seeded alike."""
+    """{family: {'digest', 'seconds'}} of each family's tiny fit, every one seeded alike, in the exact scope unless
+    host paths are asked for."""
+    from clods_bench import numerics
     from clods_bench.benchmark.determinism import seed_everything
 
     out = {}
-    for family in families:
-        seed_everything(0)
-        t0 = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="clods-probe-") as tmp:
-            digest = PROBES[family](Path(tmp))
-        out[family] = {"digest": digest, "seconds": round(time.perf_counter() - t0, 2)}
+    with numerics.maybe_exact():
+        for family in families:
+            seed_everything(0)
+            t0 = time.perf_counter()
+            with tempfile.TemporaryDirectory(prefix="clods-probe-") as tmp:
+                digest = PROBES[family](Path(tmp))
+            out[family] = {"digest": digest, "seconds": round(time.perf_counter() - t0, 2)}
     return out

@@ -24,11 +24,11 @@ from typing import Any, Callable, Literal, Sequence
 from rich.console import Console
 from rich.progress import Progress
 
-from clods_bench import deterministic_mode
+from clods_bench import numerics
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
 from clods_bench.benchmark.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.errors import ClodsError
-from clods_bench.threads import MAX_THREADS_ENV
+from clods_bench.numerics.threads import MAX_THREADS_ENV
 
 ExecutorName = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
@@ -90,6 +90,23 @@ def run_seed_job(job: SeedJob) -> dict[str, Any]:
     return {"name": job.name, "seed": int(job.seed), "record_dir": str(rdir), "wall_seconds": time.perf_counter() - t0}
 
 
+@dataclass(frozen=True)
+class InExactScope:
+    """`fn(item)` inside the exact scope unless host paths are asked for: what a worker process runs (the scope is
+    per process, and a worker is a fresh one)."""
+
+    fn: Callable[[Any], Any]
+
+    def __call__(self, item: Any) -> Any:
+        with numerics.maybe_exact():
+            return self.fn(item)
+
+
+def _call_in_scope(fn: Callable[[Any], Any], item: Any) -> Any:
+    """`InExactScope(fn)(item)` as a plain function (what a Ray task runs)."""
+    return InExactScope(fn)(item)
+
+
 def _die_with_parent(parent: int) -> None:
     """Linux: have the kernel send this worker SIGTERM when the process that started it dies, even by SIGKILL, so a
     killed `reproduce` leaves no worker computing on alone (its writes are atomic and its locks are `flock`s, which
@@ -109,14 +126,14 @@ def _die_with_parent(parent: int) -> None:
 def worker_threads(jobs: int) -> int:
     """Threads of each of `jobs` parallel workers: deterministic mode's fixed count (the numbers depend on it), else
     the cores shared out, max(1, cores // jobs)."""
-    if deterministic_mode.enabled():
-        return deterministic_mode.threads()
+    if numerics.requested():
+        return numerics.threads()
     return max(1, (os.cpu_count() or 1) // int(jobs))
 
 
 def _init_worker(threads: int, parent: int | None = None) -> None:
     """Start of a parallel worker process: die with its parent (`_die_with_parent`), cap torch's threads (every later
-    setting too, see `clods_bench.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
+    setting too, see `clods_bench.numerics.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
     if parent is not None:
         _die_with_parent(parent)
     os.environ[MAX_THREADS_ENV] = str(threads)
@@ -183,7 +200,7 @@ class LocalExecutor:
                         return
                     nxt = next(queue, None)
                     if nxt is not None:
-                        running[pool.submit(fn, nxt[1])] = nxt[0]
+                        running[pool.submit(InExactScope(fn), nxt[1])] = nxt[0]
 
                 for _ in range(self.jobs):
                     submit_next()
@@ -286,9 +303,9 @@ class RayExecutor:
             started = True
         try:
             has_gpu = ray.cluster_resources().get("GPU", 0) > 0
-            remote = ray.remote(num_cpus=self.cpus_per_task, num_gpus=0, max_retries=0)(fn)
+            remote = ray.remote(num_cpus=self.cpus_per_task, num_gpus=0, max_retries=0)(_call_in_scope)
             shares = [self.gpu_share if has_gpu and job_uses_gpu(item) else 0.0 for item in items]
-            refs = [remote.options(num_gpus=share).remote(item) if share else remote.remote(item) for item, share in zip(items, shares)]
+            refs = [remote.options(num_gpus=share).remote(fn, item) if share else remote.remote(fn, item) for item, share in zip(items, shares)]
             gpus = f"{sum(1 for x in shares if x)} of them on a GPU share of {self.gpu_share:g}" if has_gpu else "no GPU"
             index = {ref: i for i, ref in enumerate(refs)}
             out: list[Any] = [None] * len(refs)

@@ -15,7 +15,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
-from clods_bench import deterministic_mode
+from clods_bench import numerics
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.config import RunConfig
 from clods_bench.benchmark.descriptors import TaskResult
@@ -57,8 +57,8 @@ def record_dir(cfg: RunConfig) -> Path:
         ident.pop("video_config")
     else:
         ident["video_config"] = {cfg.predictor: ident["video_config"].get(cfg.predictor, {})}
-    if deterministic_mode.numeric_mode() != "deterministic":  # the host's own floating-point paths: never mixed with
-        ident["numeric_mode"] = deterministic_mode.numeric_mode()  # deterministic records (those keep their digest)
+    if numerics.numeric_mode() != "deterministic":  # the host's own floating-point paths: never mixed with
+        ident["numeric_mode"] = numerics.numeric_mode()  # deterministic records (those keep their digest)
     digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:8]
     slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg).replace("*", "-star"))
     return Path(cfg.runs_dir) / cfg.task / slug / f"{cfg.data.scene}-{cfg.preset}-{digest}"
@@ -93,7 +93,7 @@ def reusable_seed_result(rdir: Path, seed: int, data_digests: Sequence[str] | No
     if data_digests is not None and isinstance(had, list) and list(had) != list(data_digests):
         raise ClodsError(f"seed {seed}'s result was made from other data (dataset content {', '.join(map(str, had))}, now "
                          f"{', '.join(data_digests)}): the data generator or the dataset changed since", where=str(path), hint=hint)  # fmt: skip
-    numerics, now = done.get("numerics"), deterministic_mode.describe()
+    numerics, now = done.get("numerics"), numerics.describe()
     if isinstance(numerics, dict) and numerics.get("mode") == now.get("mode") == "deterministic":
         was, current = numerics.get("pins_version"), now.get("pins_version")
         if was is not None and was != current:
@@ -104,7 +104,7 @@ def reusable_seed_result(rdir: Path, seed: int, data_digests: Sequence[str] | No
 
 def save_seed_result(rdir: Path, seed: int, result: TaskResult, data_digests: Sequence[str] | None = None) -> dict[str, Any]:
     """Write a finished seed's result with its provenance: numeric mode and the content digests of the data it used."""
-    payload = {"seed": seed, **asdict(result), "numerics": deterministic_mode.describe(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    payload = {"seed": seed, **asdict(result), "numerics": numerics.describe(), "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
     if data_digests is not None:
         payload["data_digests"] = list(data_digests)
     write_json(seed_result_path(rdir, seed), payload)
@@ -127,7 +127,7 @@ def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], e
         "per_seed": {str(s): {"metrics": per_seed[s]["metrics"], "timings": per_seed[s]["timings"], "extra": per_seed[s].get("extra", {})} for s in seeds},
         "config": cfg.to_dict(),
         "versions": package_versions(),
-        "numerics": deterministic_mode.describe(),
+        "numerics": numerics.describe(),
         "commit": git_commit(),
         "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import pandas as pd
 from rich.console import Console
 
-from clods_bench import deterministic_mode
+from clods_bench import numerics
 from clods_bench.atomic import write_json, write_text
 from clods_bench.benchmark import run_digests
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict, load_config, read_yaml
@@ -380,7 +380,7 @@ def reproduce(
         canonical_name = same_as[run_name(run)]
         rows[run_name(run)] = run_digests.row_entry(run.table, run.label, record_key(summaries[canonical_name]["record_dir"]),
                                                     records[run_name(run)], None if canonical_name == run_name(run) else canonical_name)  # fmt: skip
-    numerics = next((r.get("numerics") for r in records.values() if r.get("numerics")), deterministic_mode.describe())
+    numerics = next((r.get("numerics") for r in records.values() if r.get("numerics")), numerics.describe())
     run_digests.write(out_dir / run_digests.DIGESTS_FILE, run_digests.build(preset, rows, numerics), merge_into_existing=bool(only))
     manifest = {
         "preset": preset,

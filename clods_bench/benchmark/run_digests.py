@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from clods_bench import __version__, deterministic_mode
+from clods_bench import __version__, numerics
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.stage_digests import STAGES
 from clods_bench.errors import ClodsError
@@ -52,7 +52,7 @@ def build(preset: str, rows: dict[str, dict[str, Any]], numerics: Mapping[str, A
         "clods_bench": __version__,
         "preset": preset,
         "numerics": numerics_key(numerics),
-        "made_on": {"cpu": deterministic_mode.cpu_model(), "date": time.strftime("%Y-%m-%d")},
+        "made_on": {"cpu": numerics.cpu_model(), "date": time.strftime("%Y-%m-%d")},
         "rows": rows,
     }
 

@@ -9,10 +9,11 @@ from typing import Any, Callable
 
 from rich.console import Console
 
+from clods_bench import numerics
 from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.config import RunConfig, save_config
 from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.determinism import check_numeric_paths, seed_everything
+from clods_bench.benchmark.determinism import seed_everything
 from clods_bench.benchmark.records import aggregate, record_dir, reusable_seed_result, save_seed_result
 from clods_bench.benchmark.registry import Registry
 from clods_bench.datasets.digest import content_digest
@@ -104,9 +105,13 @@ def run_task(
     console: Console | None = None,
     ensure_data: Callable[[RunConfig, Registry, bool], object] | None = None,
 ) -> Path:
-    """Run every seed of `cfg.task` not already finished; return the record directory."""
-    console = console or Console(stderr=True)
-    check_numeric_paths()
+    """Run every seed of `cfg.task` not already finished, inside the exact scope unless host paths are asked for
+    ($CLODS_BENCH_DETERMINISTIC=0); return the record directory."""
+    with numerics.maybe_exact():
+        return _run_task(cfg, registry, console or Console(stderr=True), ensure_data)
+
+
+def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data: Callable[[RunConfig, Registry, bool], object] | None) -> Path:
     check_plugins(cfg, registry)
     cfg = resolve_plugin_configs(cfg, registry)
     task = registry.get("task", cfg.task)

@@ -26,7 +26,7 @@ from rich.console import Console
 from rich.table import Table
 
 from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
-from clods_bench.deterministic_mode import cpu_model
+from clods_bench.numerics import cpu_model
 from clods_bench.benchmark.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.scenes import Resolution, get_scene, simulate_scene
 from clods_bench.datasets.types import Trajectory

@@ -21,7 +21,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from clods_bench.deterministic_mode import cpu_model
+from clods_bench.numerics import cpu_model
 from clods_bench.benchmark.config import RunConfig
 from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.interfaces import FitContext

@@ -10,7 +10,7 @@ returned other outputs: the kernels that depend on the CPU. Run the trace native
     qemu-x86_64 -cpu EPYC-Rome .venv/bin/python examples/studies/op_trace.py trace "graph net" /tmp/rome.json
     python examples/studies/op_trace.py compare /tmp/xeon.json /tmp/rome.json
 
-Intel Xeon Sapphire Rapids against QEMU 7.2's EPYC-Rome, 2026-11-29: without `clods_bench.exact_math`, `aten.sqrt`
+Intel Xeon Sapphire Rapids against QEMU 7.2's EPYC-Rome, 2026-11-29: without `clods_bench.numerics.exact_math`, `aten.sqrt`
 (and Adam's `_foreach_sqrt`) were the only such operations in all four probe fits (graph net: sqrt x20,
 _foreach_sqrt x1); with it, none are, in those four and in the TAU, MAU and MMVP fits.
 """

@@ -7,7 +7,7 @@ import itertools
 import pytest
 from rich.console import Console
 
-from clods_bench import deterministic_mode as dm
+from clods_bench import numerics as dm
 from clods_bench.benchmark import determinism_bench
 
 

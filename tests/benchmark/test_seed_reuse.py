@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from clods_bench import deterministic_mode
+from clods_bench import numerics
 from clods_bench.benchmark.executors import LocalExecutor, run_configs
 from clods_bench.benchmark.records import seed_result_path
 from clods_bench.benchmark.registry import default_registry
@@ -69,9 +69,9 @@ def test_a_result_from_other_data_is_an_error_naming_it(finished) -> None:
 
 def test_a_result_under_other_pins_is_an_error(finished, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg, path = finished
-    now = {"mode": "deterministic", "pins_version": deterministic_mode.PINS_VERSION}
+    now = {"mode": "deterministic", "pins_version": numerics.PINS_VERSION}
     monkeypatch.setattr(deterministic_mode, "describe", lambda: dict(now))  # deterministic whatever this process runs
-    older = deterministic_mode.PINS_VERSION - 1
+    older = numerics.PINS_VERSION - 1
     _edit(path, numerics={"mode": "deterministic", "pins_version": now["pins_version"]})
     run_task(cfg, default_registry(), Console(quiet=True))  # the same pins: reused
     _edit(path, numerics={"mode": "deterministic", "pins_version": older})

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench import deterministic_mode
+from clods_bench import numerics
 from clods_bench.atomic import write_json, write_npz
 from clods_bench.errors import ClodsError
 
@@ -27,8 +27,8 @@ CACHE_FORMAT = 1
 def digest(identity: Any) -> str:
     """16 hex digits of the SHA-256 of a JSON-able identity (sorted keys)."""
     key: dict[str, Any] = {"format": CACHE_FORMAT, "identity": identity}
-    if deterministic_mode.numeric_mode() != "deterministic":  # fits made on the host's own paths stay apart
-        key["numeric_mode"] = deterministic_mode.numeric_mode()
+    if numerics.numeric_mode() != "deterministic":  # fits made on the host's own paths stay apart
+        key["numeric_mode"] = numerics.numeric_mode()
     blob = json.dumps(key, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -2,7 +2,7 @@
 
 OpenSTL does not use PyTorch's default initialisation everywhere: its encoder/decoder convolutions get a
 truncated normal of std 0.02 (timm's `trunc_normal_`, cut at the absolute values -2 and 2, so at std 0.02 it is
-a plain normal in practice; drawn here by `clods_bench.truncated_normal`, the same distribution) with zero bias,
+a plain normal in practice; drawn here by `clods_bench.numerics.truncated_normal`, the same distribution) with zero bias,
 and its VAN-style MLP convolutions a normal of std sqrt(2 / fan_out) with zero bias. Each helper re-initialises the matching layers of a module in place and leaves every other
 layer as it is, so a network applies them to exactly the sub-modules its authors' code applies them to.
 """
@@ -14,7 +14,7 @@ import math
 import torch
 from torch import nn
 
-from clods_bench.truncated_normal import truncated_normal_
+from clods_bench.numerics.truncated_normal import truncated_normal_
 
 
 @torch.no_grad()

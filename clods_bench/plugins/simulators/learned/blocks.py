@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from clods_bench.plugins.simulators.learned.graph import EdgeSet
-from clods_bench.truncated_normal import truncated_normal_
+from clods_bench.numerics.truncated_normal import truncated_normal_
 
 
 def make_mlp(

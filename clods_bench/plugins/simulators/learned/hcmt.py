@@ -32,7 +32,7 @@ from clods_bench.plugins.simulators.learned.hierarchy import HierarchyCache
 from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
 from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 from clods_bench.plugins.simulators.learned.unet_configs import HcmtConfig
-from clods_bench.truncated_normal import truncated_normal_
+from clods_bench.numerics.truncated_normal import truncated_normal_
 
 SCORE_CLIP = 2.0  # the code's tf.clip_by_value(score, -2, 2)
 

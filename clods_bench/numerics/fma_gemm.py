@@ -67,6 +67,7 @@ _lock = threading.Lock()
 _kernels: dict[tuple[str, str], Any] = {}
 _host: dict[str, str] = {}
 _pools: dict[int, Any] = {}
+_fork_hook: list[bool] = []
 _PARALLEL_WORK = 1 << 22
 """Multiply-adds below which a product runs on one thread whatever `threads` says."""
 
@@ -76,9 +77,21 @@ def _pool(size: int) -> Any:
     from concurrent.futures import ThreadPoolExecutor
 
     with _lock:
+        if not _fork_hook:  # registered with the first pool, not on import
+            os.register_at_fork(after_in_child=_after_fork_in_child)
+            _fork_hook.append(True)
         if size not in _pools:
             _pools[size] = ThreadPoolExecutor(max_workers=size, thread_name_prefix="fma_gemm")
         return _pools[size]
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of its parent's pool threads, and the lock may have been held at the fork: start anew."""
+    global _lock
+    _lock = threading.Lock()
+    _pools.clear()
+
+
 _engines: list[Any] = []  # the JIT engines own the machine code: kept alive for the process
 
 

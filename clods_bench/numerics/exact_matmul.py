@@ -69,7 +69,7 @@ def _product(a: Any, b: Any, row: Any = None) -> Any:
     fused multiply-adds for float32 and float64, numpy for the other dtypes (integers are exact anyway)."""
     import numpy as np
 
-    from clods_bench import fma_gemm
+    from clods_bench.numerics import fma_gemm
 
     import torch
 
@@ -144,7 +144,8 @@ def baddbmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
 
 
 def install() -> None:
-    """Register the numpy kernels for `REPLACED` on torch's CPU dispatch key (once per process; imports torch)."""
+    """Register the kernels for `REPLACED` on torch's CPU dispatch key (a no-op when installed; imports torch).
+    Called by `numerics.exact()`, which removes them again with `uninstall()`."""
     if installed():
         return
     import torch
@@ -167,3 +168,11 @@ def install() -> None:
         for name, kernel in forms.items():
             library.impl(name, kernel, "CPU")
     _state["library"] = library
+
+
+def uninstall() -> None:
+    """Remove the replacement kernels: torch's own CPU kernels for `REPLACED` are back (a no-op when not installed)."""
+    library = _state["library"]
+    if library is not None:
+        library._destroy()
+        _state["library"] = None

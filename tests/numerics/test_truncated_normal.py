@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from clods_bench.truncated_normal import truncated_normal_
+from clods_bench.numerics.truncated_normal import truncated_normal_
 
 TORCH_2_13 = tuple(int(x) for x in torch.__version__.split("+")[0].split(".")[:2]) >= (2, 13)
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench import deterministic_mode as dm
-from clods_bench import exact_math
+from clods_bench import numerics as dm
+from clods_bench.numerics import exact_math
 
 
 
@@ -36,7 +36,7 @@ def test_installed_when_torch_loads_in_deterministic_mode() -> None:
 
 def _installed_in_fresh_python(code: str, **env: str) -> str:
     full = {k: v for k, v in os.environ.items() if k not in (dm.SWITCH_ENV, dm.BEFORE_PINS_ENV)} | env
-    probe = "\nfrom clods_bench import exact_math, exact_matmul; print(exact_math.installed() and exact_matmul.installed(), exact_math.installed() or exact_matmul.installed())"
+    probe = "\nfrom clods_bench.numerics import exact_math, exact_matmul; print(exact_math.installed() and exact_matmul.installed(), exact_math.installed() or exact_matmul.installed())"
     out = subprocess.run([sys.executable, "-c", code + probe],
                          capture_output=True, text=True, env=full, timeout=300)  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]

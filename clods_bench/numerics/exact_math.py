@@ -42,15 +42,20 @@ def _kernel(ufunc: Callable[[Any], Any]) -> Callable[[Any], Any]:
         dtype = x.dtype if (x.dtype.is_floating_point or x.dtype.is_complex) else torch.get_default_dtype()
         target = wide.get(dtype, dtype)
         work = x if x.dtype == target else x.to(target)
-        with np.errstate(all="ignore"):
-            out = torch.from_numpy(np.ascontiguousarray(ufunc(work.detach().contiguous().numpy())))
-        return out if out.dtype == dtype else out.to(dtype)
+        with np.errstate(all="ignore"):  # a 0-d input gives a numpy scalar: asarray keeps it 0-d
+            out = torch.from_numpy(np.asarray(ufunc(work.detach().resolve_conj().contiguous().numpy())))
+        out = out if out.dtype == dtype else out.to(dtype)
+        if x.is_contiguous():
+            return out
+        laid_out = torch.empty_like(x, dtype=dtype)  # ATen's output follows the input's layout (channels-last, ...)
+        return laid_out.copy_(out)
 
     return kernel
 
 
 def install() -> None:
-    """Register the numpy kernels for `REPLACED` on torch's CPU dispatch key (once per process; imports torch)."""
+    """Register the kernels for `REPLACED` on torch's CPU dispatch key (a no-op when installed; imports torch).
+    Called by `numerics.exact()`, which removes them again with `uninstall()`."""
     if installed():
         return
     import numpy as np
@@ -75,3 +80,11 @@ def install() -> None:
             library.impl(f"{name}_", inplace, "CPU")
             library.impl(f"{name}.out", out_form, "CPU")
     _state["library"] = library
+
+
+def uninstall() -> None:
+    """Remove the replacement kernels: torch's own CPU kernels for `REPLACED` are back (a no-op when not installed)."""
+    library = _state["library"]
+    if library is not None:
+        library._destroy()
+        _state["library"] = None

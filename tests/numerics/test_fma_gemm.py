@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from clods_bench import deterministic_mode as dm
-from clods_bench import fma_gemm
+from clods_bench import numerics as dm
+from clods_bench.numerics import fma_gemm
 
 pytestmark = pytest.mark.skipif("avx2" not in (dm.cpu_flags() or {"avx2"}), reason="the kernels need an AVX2 CPU")
 
@@ -183,7 +183,7 @@ def test_bad_operands_and_settings_say_what_is_wrong(monkeypatch: pytest.MonkeyP
 def test_compiled_kernels_are_kept_on_disk_and_give_the_same_bits(tmp_path: Any) -> None:
     """The second process loads the first one's machine code (no compilation) and computes the same bits; an
     unwritable cache folder only costs the compilation."""
-    code = ("import hashlib, numpy as np\nfrom clods_bench import fma_gemm\n"
+    code = ("import hashlib, numpy as np\nfrom clods_bench.numerics import fma_gemm\n"
             "a = (np.arange(4000, dtype=np.float32).reshape(40, 100) % 97) / 7\n"
             "print(hashlib.sha256(fma_gemm.matmul(a, a.T.copy(), isa='avx2').tobytes()).hexdigest())")  # fmt: skip
     env = {k: v for k, v in os.environ.items()} | {fma_gemm.CACHE_ENV: str(tmp_path / "kernels")}

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench import deterministic_mode as dm
-from clods_bench import exact_matmul, fma_gemm
+from clods_bench import numerics as dm
+from clods_bench.numerics import exact_matmul, fma_gemm
 
 _G = torch.Generator().manual_seed(11)
 

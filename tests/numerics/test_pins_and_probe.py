@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench import deterministic_mode as dm
+from clods_bench import numerics as dm
 from clods_bench.benchmark.cli import main
 from clods_bench.benchmark.determinism import check_numeric_paths, effective_paths
 from clods_bench.errors import ClodsError
@@ -23,7 +23,7 @@ X86_AVX2 = not dm.missing_cpu_features()
 
 def test_the_test_session_runs_on_the_pinned_paths() -> None:
     """pytest loads clods_bench first (`-p clods_bench`): no numeric library escaped the pins."""
-    assert dm.enabled() and dm.loaded_too_early() == []
+    assert dm.requested() and dm.loaded_too_early() == []
     paths = effective_paths()
     assert paths["mkl_cbwr"] == "COMPATIBLE" and paths["onednn_max_isa"] == "AVX2" and paths["torch_threads"] == 1
     if X86_AVX2:
@@ -105,7 +105,7 @@ def test_the_cpu_is_named_with_family_model_and_vector_width() -> None:
 
 
 def test_records_name_the_product_kernels_in_use(monkeypatch: pytest.MonkeyPatch) -> None:
-    from clods_bench import fma_gemm
+    from clods_bench.numerics import fma_gemm
 
     assert dm.describe()["product_kernels"] == fma_gemm.host_isa()
     monkeypatch.setenv("CLODS_BENCH_GEMM_ISA", "avx2")
