@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p)
     p.add_argument("--force", action="store_true", help="delete an existing dataset with these settings first")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="generate the trajectories here (default) or as Ray tasks")
-    p.add_argument("--jobs", type=int, default=1, help="local executor: trajectories generated in this many worker processes (default 1)")
+    p.add_argument("--jobs", type=int, help="local executor: trajectories generated in this many worker processes (default: one per core)")
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     p.set_defaults(func=cmd_data_generate)
     p = dsub.add_parser("convert", help="convert a dataset of an older clods-bench (store schema 1, raw .npy frames) in place")
@@ -114,7 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-subset", choices=("all", "first_half"), help="training trajectories: all (MGN) or first half (MGN*)")
     p.add_argument("--seeds", type=int, nargs="+", help="seeds (default from the preset)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the seeds here (default) or as Ray tasks")
-    p.add_argument("--jobs", type=int, default=1, help="local executor: seeds run in this many worker processes (default 1)")
+    p.add_argument("--jobs", type=int,
+                   help="local executor: seeds run in this many worker processes (default: one per core, at most one per seed; "
+                        "the numbers are the same for any count)")  # fmt: skip
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     _add_config_args(p)
     p.set_defaults(func=cmd_run)
@@ -138,7 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plan", type=Path, help="plan YAML (default: the built-in clods_bench/benchmark/plans/reproduce.yaml)")
     p.add_argument("--out", type=Path, help="folder of the tables and manifest (default: results/<preset>)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the (run, seed) jobs here (default) or as Ray tasks")
-    p.add_argument("--jobs", type=int, default=1, help="local executor: (run, seed) jobs run in this many worker processes (default 1)")
+    p.add_argument("--jobs", type=int,
+                   help="local executor: (run, seed) jobs run in this many worker processes (default: one per core; the numbers "
+                        "are the same for any count)")  # fmt: skip
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     p.add_argument("--only", nargs="+", default=[], metavar="TABLE", help="only these table ids of the plan")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override applied to every run")
@@ -283,7 +287,10 @@ def cmd_data_generate(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     scene = _registry().get("scene", cfg.data.scene)
-    executor = None if args.executor == "local" and args.jobs == 1 else make_executor(args.executor, args.ray_address, args.jobs)
+    from clods_bench.benchmark.executors import default_jobs
+
+    jobs = args.jobs or default_jobs()
+    executor = None if args.executor == "local" and jobs == 1 else make_executor(args.executor, args.ray_address, jobs)
     store = generate(cfg.data, scene, progress=cfg.progress, force=args.force, executor=executor)
     console.print(f"dataset: {store.root} ({len(store)} trajectories)")
     return 0
@@ -395,12 +402,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.runner import run_task
 
     cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
-    if args.executor == "local" and args.jobs == 1:
+    from clods_bench.benchmark.executors import default_jobs, make_executor, run_configs
+
+    jobs = args.jobs or min(default_jobs(), max(1, len(cfg.seeds)))
+    if args.executor == "local" and jobs == 1:
         rdir = run_task(cfg, _registry(), err_console)
     else:
-        from clods_bench.benchmark.executors import make_executor, run_configs
-
-        summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address, args.jobs), _registry(), err_console)
+        summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address, jobs), _registry(), err_console)
         rdir = Path(summary[0]["record_dir"])
     import json
 
@@ -459,6 +467,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    from clods_bench.benchmark.executors import default_jobs
     from clods_bench.benchmark.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
 
     out = args.out or Path("results") / args.preset
@@ -488,7 +497,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             _report_config_changes(args.check, runs, rdirs, args.preset)
         return 0
     manifest = reproduce(
-        args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs, args.first_seeds,
+        args.preset, out, _registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs or default_jobs(), args.first_seeds,
         budget_seconds=args.budget,
     )  # fmt: skip
     console.print(f"wrote {len(manifest['files'])} table files and manifest.json to {out} in {manifest['wall_seconds_total']:.1f} s")

@@ -123,6 +123,15 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+def default_jobs() -> int:
+    """Worker processes when --jobs is not given: one per core this process may run on (the numbers do not depend on
+    the count: each job runs at the exact scope's thread count, alone in its process)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def worker_threads(jobs: int) -> int:
     """Threads of each of `jobs` parallel workers: deterministic mode's fixed count (the numbers depend on it), else
     the cores shared out, max(1, cores // jobs)."""
