@@ -28,7 +28,7 @@ from clods_bench import numerics
 from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
 from clods_bench.benchmark.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import MAX_THREADS_ENV
+from clods_bench.numerics.thread_limits import MAX_THREADS_ENV
 
 ExecutorName = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
@@ -142,7 +142,7 @@ def worker_threads(jobs: int) -> int:
 
 def _init_worker(threads: int, parent: int | None = None) -> None:
     """Start of a parallel worker process: die with its parent (`_die_with_parent`), cap torch's threads (every later
-    setting too, see `clods_bench.numerics.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
+    setting too, see `clods_bench.numerics.thread_limits`) and numba's parallel kernels (the splatting backend) at `threads`."""
     if parent is not None:
         _die_with_parent(parent)
     os.environ[MAX_THREADS_ENV] = str(threads)

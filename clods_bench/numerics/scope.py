@@ -2,8 +2,8 @@
 give the same bits on every x86-64 CPU with AVX2; on leaving it, torch is as it was.
 
 The CLI, the runner and every executor worker enter it; a library user can too (after `pin_environment()`, see
-`clods_bench.numerics`). Entering checks, once per outermost entry, what the scope cannot fix by itself: a CPU
-without AVX2/FMA/F16C, pins missing from the environment, or a numeric library loaded before them. The scope is
+`clods_bench.numerics`). Every entry checks what the scope cannot fix by itself: a CPU without AVX2/FMA/F16C, pins
+missing from the environment, or a numeric library loaded before them. The scope is
 process-wide (torch's dispatch table is), re-entrant, and counts its entries: the kernels leave with the last exit.
 """
 
@@ -14,8 +14,8 @@ import threading
 from typing import Any, Iterator
 
 from clods_bench.errors import ClodsError
-from clods_bench.numerics import cpu
-from clods_bench.numerics import pinning as pins
+import clods_bench.numerics.cpu as cpu
+import clods_bench.numerics.pinning as pins
 
 _lock = threading.RLock()
 _state: dict[str, Any] = {"depth": 0, "restore": None}
@@ -75,8 +75,8 @@ def active() -> bool:
 
 def _enter() -> None:
     with _lock:
+        check()  # at every entry: a nested scope in a process that lost its footing says so too
         if _state["depth"] == 0:
-            check()
             import torch
 
             from clods_bench.numerics import exact_math, exact_matmul

@@ -14,7 +14,7 @@ from clods_bench.benchmark.records import RECORD_FILE
 from clods_bench.benchmark.registry import default_registry
 from clods_bench.benchmark.reproduce import reproduce
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import MAX_THREADS_ENV, torch_threads
+from clods_bench.numerics.thread_limits import MAX_THREADS_ENV, torch_threads
 from tests.benchmark.test_reproduce import _overrides, _plan
 
 TIMING = ("infer_ms_per_step", "fit_seconds")

@@ -23,7 +23,7 @@ from clods_bench.plugins.simulators.learned.graph import GraphSpec, build_featur
 from clods_bench.plugins.simulators.learned.mgn import build_mgn
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=True)

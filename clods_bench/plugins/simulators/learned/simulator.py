@@ -40,7 +40,7 @@ from clods_bench.plugins.simulators.learned.config import LearnedConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, TopologyCache
 from clods_bench.plugins.simulators.learned.model import LearnedModel, ProcessorFactory
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 
 DT_RTOL = 1e-6
 
