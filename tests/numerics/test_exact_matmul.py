@@ -125,12 +125,17 @@ def test_other_dtypes_and_empty_products() -> None:
 
 
 def test_bad_shapes_and_dtypes_raise_atens_error() -> None:
+    """ATen's messages (`test_aten_semantics` compares every error's type with ATen's in a fresh interpreter)."""
     with pytest.raises(RuntimeError, match=r"cannot be multiplied \(3x4 and 5x6\)"):
         torch.mm(_randn(3, 4), _randn(5, 6))
-    with pytest.raises(RuntimeError, match="same dtype"):
+    with pytest.raises(RuntimeError, match="expected m1 and m2 to have the same dtype, but got: float != double"):
         torch.mm(_randn(3, 4), _randn(4, 2, dtype=torch.float64))
-    with pytest.raises(RuntimeError, match="expected 3D tensors"):
+    with pytest.raises(RuntimeError, match="batch1 must be a 3D tensor"):
         torch.bmm(_randn(3, 4), _randn(4, 2))
+    with pytest.raises(RuntimeError, match="Expected out tensor to have dtype float, but got double instead"):
+        torch.mm(_randn(3, 4), _randn(4, 2), out=torch.empty(0, dtype=torch.float64))
+    with pytest.raises(NotImplementedError, match="not implemented for 'Bool'"):
+        torch.mm(torch.ones(2, 2, dtype=torch.bool), torch.ones(2, 2, dtype=torch.bool))
 
 
 def _product_digest(**env: str) -> str:
