@@ -4,7 +4,8 @@ the exact scope) and the replacements (inside it) can be compared call for call.
 A case is a dict: `kind` "call" (`name`, `form` of "function", "method", "inplace" or "out", `args`, `kwargs`, `out`,
 `grad`: the positions of the arguments to differentiate, `seed` of the random weighting of the output) or "optim"
 (`optimizer`, `options`, `params`, `grads`: one list of gradients per step). `reference(cases)` computes the records
-in a child process, with the pins this process has, and never inside `numerics.exact()`.
+in a child process, with the pins this process has, and never inside `numerics.exact()`; `reference_of_built` has
+the child make the cases too.
 """
 
 from __future__ import annotations
@@ -98,31 +99,45 @@ def run(cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [_optimise(c) if c["kind"] == "optim" else _call(c) for c in cases]
 
 
-def start_reference(cases: list[dict[str, Any]], folder: Path) -> tuple[subprocess.Popen[str], Path]:
-    """Save `cases` and start a fresh Python that computes their records with ATen's kernels (the pins of this process,
-    no exact scope); `finish_reference` collects them. The parent can work meanwhile."""
-    source, target = folder / "cases.pt", folder / "aten.pt"
+_CHILD = """
+from clods_bench import numerics
+numerics.pin_environment()
+import importlib, sys, torch
+from clods_bench.numerics import exact_math, exact_matmul, scope
+from tests.numerics import aten_reference as ref
+assert not (scope.active() or exact_math.installed() or exact_matmul.installed())
+source, target, build = sys.argv[1:4]
+if build:
+    module, _, function = build.partition(":")
+    cases = getattr(importlib.import_module(module), function)()
     torch.save(cases, source)
-    code = ("from clods_bench import numerics; numerics.pin_environment()\n"
-            "import sys, torch\nfrom clods_bench.numerics import exact_math, exact_matmul, scope\n"
-            "from tests.numerics import aten_reference as ref\n"
-            "assert not (scope.active() or exact_math.installed() or exact_matmul.installed())\n"
-            "torch.save(ref.run(torch.load(sys.argv[1], weights_only=False)), sys.argv[2])")  # fmt: skip
-    child = subprocess.Popen([sys.executable, "-c", code, str(source), str(target)], cwd=ROOT, env=dict(os.environ),
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    return child, target
+else:
+    cases = torch.load(source, weights_only=False)
+torch.save(ref.run(cases), target)
+"""
 
 
-def finish_reference(child: subprocess.Popen[str], target: Path, timeout: float = 240) -> list[dict[str, Any]]:
-    """Wait for the child of `start_reference` and load its records."""
-    _, err = child.communicate(timeout=timeout)
-    if child.returncode != 0:
-        raise RuntimeError(f"the ATen reference process failed:\n{err[-3000:]}")
-    return torch.load(target, weights_only=False)
+def _child(folder: Path, build: str = "") -> tuple[Path, Path]:
+    """Run a fresh Python that computes the records of the cases in folder/cases.pt (or first makes them there with
+    `build`, "module:function") with ATen's kernels: the pins of this process, no exact scope."""
+    source, target = folder / "cases.pt", folder / "aten.pt"
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(source), str(target), build], cwd=ROOT, env=dict(os.environ),
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    if out.returncode != 0:
+        raise RuntimeError(f"the ATen reference process failed:\n{out.stderr[-3000:]}")
+    return source, target
 
 
 def reference(cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The records of `cases` computed by ATen's own kernels in a fresh Python."""
     with tempfile.TemporaryDirectory() as tmp:
-        child, target = start_reference(cases, Path(tmp))
-        return finish_reference(child, target)
+        torch.save(cases, Path(tmp) / "cases.pt")
+        _, target = _child(Path(tmp))
+        return torch.load(target, weights_only=False)
+
+
+def reference_of_built(build: str, folder: Path) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The cases `build` ("module:function") makes in a fresh Python, and their records by ATen's kernels there: what
+    makes the cases (torch's OpInfo database, say) is never imported into this process."""
+    source, target = _child(folder, build)
+    return torch.load(source, weights_only=False), torch.load(target, weights_only=False)
