@@ -57,13 +57,13 @@ def _kernel(ufunc: Callable[[Any], Any]) -> Callable[[Any], Any]:
 
     def kernel(x: torch.Tensor) -> torch.Tensor:
         dtype = _result_dtype(x)
+        if x.numel() == 0:  # nothing to compute; laid out contiguously, as ATen's empty results are
+            return torch.empty(x.shape, dtype=dtype)
         target = wide.get(dtype, dtype)
         work = x if x.dtype == target else x.to(target)
         with np.errstate(all="ignore"):  # a 0-d input gives a numpy scalar: asarray keeps it 0-d
             out = torch.from_numpy(np.asarray(evaluate(ufunc, work.detach().resolve_conj().resolve_neg().contiguous().numpy())))
         out = out if out.dtype == dtype else out.to(dtype)
-        if x.numel() == 0:  # numpy gives an empty array zero strides; ATen, contiguous ones
-            return torch.empty(x.shape, dtype=dtype)
         if x.is_contiguous():
             return out
         laid_out = torch.empty_like(x, dtype=dtype)  # ATen's output follows the input's layout (channels-last, ...)
