@@ -73,6 +73,18 @@ def active() -> bool:
     return _state["depth"] > 0
 
 
+def _set_mkldnn_deterministic(value: bool) -> None:
+    """Set oneDNN's deterministic flag, also after `torch.backends.disable_global_flags()` (which importing torch's
+    test utilities calls, and which makes a bare assignment raise): the same flag either way."""
+    import torch
+
+    setter = getattr(torch._C, "_set_mkldnn_deterministic", None)
+    if setter is None:  # pragma: no cover - a torch without the binding
+        torch.backends.mkldnn.deterministic = value
+    else:
+        setter(value)
+
+
 def _enter() -> None:
     with _lock:
         check()  # at every entry: a nested scope in a process that lost its footing says so too
@@ -86,7 +98,7 @@ def _enter() -> None:
             exact_matmul.install()
             torch.set_num_threads(pins.threads())
             if restore["mkldnn"] is not None:
-                torch.backends.mkldnn.deterministic = True  # oneDNN's reductions in a fixed order whatever the threads
+                _set_mkldnn_deterministic(True)  # oneDNN's reductions in a fixed order whatever the threads
             _state["restore"] = restore
         _state["depth"] += 1
 
@@ -107,7 +119,7 @@ def _exit() -> None:
             if restore.get("threads"):
                 torch.set_num_threads(restore["threads"])
             if restore.get("mkldnn") is not None:
-                torch.backends.mkldnn.deterministic = restore["mkldnn"]
+                _set_mkldnn_deterministic(restore["mkldnn"])
             _state["restore"] = None
 
 
