@@ -10,16 +10,16 @@ release, even where a plugin can reach it.
 The hooks a plugin implements (one list of descriptors each, all implementations concatenated):
 `clods_bench_simulators`, `clods_bench_renderers`, `clods_bench_video_predictors` (`PluginSpec`),
 `clods_bench_scenes` (`SceneSpec`) and `clods_bench_tasks` (`TaskSpec`); their contracts are the docstrings of
-`clods_bench.benchmark.hookspecs`.
+`clods_bench.benchmark.core.hookspecs`.
 """
 
 from __future__ import annotations
 
 from clods_bench.api_version import API_VERSION, DECLARATION, PluginAPIDeprecationWarning
-from clods_bench.benchmark.config import DataConfig, RunConfig
-from clods_bench.benchmark.descriptors import BuildContext, EmptyConfig, PluginSpec, TaskContext, TaskResult, TaskSpec
-from clods_bench.benchmark.hookspecs import ENTRY_POINT_GROUP, hookimpl
-from clods_bench.benchmark.interfaces import (
+from clods_bench.benchmark.core.config import DataConfig, RunConfig
+from clods_bench.benchmark.core.descriptors import BuildContext, EmptyConfig, PluginSpec, TaskContext, TaskResult, TaskSpec
+from clods_bench.benchmark.core.hookspecs import ENTRY_POINT_GROUP, hookimpl
+from clods_bench.benchmark.core.interfaces import (
     FitContext,
     Renderer,
     RolloutInput,

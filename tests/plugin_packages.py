@@ -37,7 +37,7 @@ def clods_bench_simulators():
 
 DEPRECATED_SCENE = '''
 """A scene written for the pre-1.0 form: SceneSpec(kind=...) with a build_mesh override."""
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.datasets.cloth_solver import SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import SceneSpec
@@ -177,5 +177,5 @@ def run_cli(site: Path, *args: str, env: dict[str, str] | None = None, cwd: Path
     full = {k: v for k, v in os.environ.items() if k != "CLODS_BENCH_STRICT_PLUGINS"}
     full["PYTHONPATH"] = os.pathsep.join([str(site), str(ROOT)])
     full.update(env or {})
-    cmd = [sys.executable, "-m", "clods_bench.benchmark.cli", *args]
+    cmd = [sys.executable, "-m", "clods_bench.cli", *args]
     return subprocess.run(cmd, capture_output=True, text=True, env=full, cwd=cwd or ROOT, timeout=300)

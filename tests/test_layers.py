@@ -48,15 +48,15 @@ def _walk_run_time(tree: ast.AST) -> list[ast.AST]:
 MODULES = {_module_name(p): p for p in PKG.rglob("*.py")}
 DATASETS_UP_IMPORTS = {
     # The built-in scenes register through the plugin hooks like any third-party scene package: the plugin layer.
-    "clods_bench.datasets.builtin_scenes": ["clods_bench.benchmark.hookspecs"],
-    # Known debt: the data config dataclass and its YAML loader live in benchmark/config.py.
-    "clods_bench.datasets.generate": ["clods_bench.benchmark.config"],
+    "clods_bench.plugins.scenes.builtin": ["clods_bench.benchmark.core.hookspecs"],
+    # Known debt: the data config dataclass and its YAML loader live in benchmark/core/config.py.
+    "clods_bench.datasets.generate": ["clods_bench.benchmark.core.config"],
 }
 
 
 def test_the_scan_sees_the_package() -> None:
-    assert {"clods_bench.benchmark.tasks.cdg", "clods_bench.benchmark.builders", "clods_bench.datasets.store"} <= MODULES.keys()
-    assert "clods_bench.benchmark.builders" in _imports(MODULES["clods_bench.benchmark.tasks.cdg"])
+    assert {"clods_bench.benchmark.tasks.cdg", "clods_bench.benchmark.core.builders", "clods_bench.datasets.store"} <= MODULES.keys()
+    assert "clods_bench.benchmark.core.builders" in _imports(MODULES["clods_bench.benchmark.tasks.cdg"])
 
 
 def test_no_module_imports_a_task_module() -> None:
@@ -65,7 +65,7 @@ def test_no_module_imports_a_task_module() -> None:
         for name, path in MODULES.items()
         if name not in (TASKS, f"{TASKS}.builtin")
     }
-    assert not {k: v for k, v in bad.items() if v}, "shared code belongs in benchmark/builders.py or below"
+    assert not {k: v for k, v in bad.items() if v}, "shared code belongs in benchmark/core/builders.py or below"
 
 
 def test_datasets_import_neither_the_benchmark_nor_the_plugins() -> None:

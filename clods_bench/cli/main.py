@@ -15,7 +15,7 @@ from rich.table import Table
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.config import RunConfig
+    from clods_bench.benchmark.core.config import RunConfig
 
 console = Console()
 err_console = Console(stderr=True, soft_wrap=True)
@@ -137,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="run the paper's tables from the reproduce plan; tables + manifest.json into --out")
     p.add_argument("--preset", default="ci", help="built-in preset: ci, small, paper (default: ci)")
-    p.add_argument("--plan", type=Path, help="plan YAML (default: the built-in clods_bench/benchmark/plans/reproduce.yaml)")
+    p.add_argument("--plan", type=Path, help="plan YAML (default: the built-in clods_bench/benchmark/reproduction/plans/reproduce.yaml)")
     p.add_argument("--out", type=Path, help="folder of the tables and manifest (default: results/<preset>)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="run the (run, seed) jobs here (default) or as Ray tasks")
     p.add_argument("--jobs", type=int,
@@ -218,13 +218,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _registry():
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     return default_registry()
 
 
 def _config(args: argparse.Namespace, **fields):
-    from clods_bench.benchmark.config import load_config
+    from clods_bench.benchmark.core.config import load_config
 
     overrides = list(args.overrides)
     if getattr(args, "scene", None):
@@ -237,8 +237,8 @@ def _config(args: argparse.Namespace, **fields):
 def cmd_list(args: argparse.Namespace) -> int:
     from clods_bench import __version__
     from clods_bench.api_version import API_VERSION
-    from clods_bench.benchmark.config import preset_description, preset_names
-    from clods_bench.benchmark.plugin_report import print_problems, source_label
+    from clods_bench.benchmark.core.config import preset_description, preset_names
+    from clods_bench.benchmark.core.plugin_report import print_problems, source_label
 
     reg = _registry()
     table = Table(title=f"clods-bench {__version__} (plugin API {API_VERSION}): what is installed")
@@ -262,7 +262,7 @@ def cmd_numerics(args: argparse.Namespace) -> int:
             print(f"export {key}='{value}'")  # plain print: no line wrapping, the output is for `eval`
         print(f"export {dm.SWITCH_ENV}=1")
         return 0
-    from clods_bench.benchmark.determinism import effective_paths
+    from clods_bench.benchmark.core.determinism import effective_paths
 
     info = dm.describe()
     console.print(f"mode: {info['mode']} (CPU: {info['cpu']}; pins version {dm.PINS_VERSION}, {dm.threads()} thread(s) per job)"
@@ -274,7 +274,7 @@ def cmd_numerics(args: argparse.Namespace) -> int:
         console.print(f"this CPU lacks {', '.join(missing)}: deterministic runs stop with an error here", highlight=False)
     console.print("in use: " + ", ".join(f"{k}={v}" for k, v in effective_paths().items()), highlight=False)
     if args.probe:
-        from clods_bench.benchmark.determinism_probe import probe
+        from clods_bench.benchmark.speed.determinism_probe import probe
 
         for family, got in probe().items():
             console.print(f"probe {family}: {got['digest']} ({got['seconds']:.1f} s)", highlight=False)
@@ -282,12 +282,12 @@ def cmd_numerics(args: argparse.Namespace) -> int:
 
 
 def cmd_data_generate(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.executors import make_executor
+    from clods_bench.benchmark.running.executors import make_executor
     from clods_bench.datasets.generate import generate
 
     cfg = _config(args)
     scene = _registry().get("scene", cfg.data.scene)
-    from clods_bench.benchmark.executors import default_jobs
+    from clods_bench.benchmark.running.executors import default_jobs
 
     jobs = args.jobs or default_jobs()
     executor = None if args.executor == "local" and jobs == 1 else make_executor(args.executor, args.ray_address, jobs)
@@ -374,7 +374,7 @@ def cmd_data_export(args: argparse.Namespace) -> int:
 
 
 def cmd_data_export_meshes(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.mesh_export import export_mesh_sample
+    from clods_bench.benchmark.outputs.mesh_export import export_mesh_sample
 
     written = export_mesh_sample(args.sample, args.out, args.format)
     for name, paths in written.items():
@@ -398,11 +398,11 @@ def cmd_data_import_video(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.records import RECORD_FILE
-    from clods_bench.benchmark.runner import run_task
+    from clods_bench.benchmark.running.records import RECORD_FILE
+    from clods_bench.benchmark.running.runner import run_task
 
     cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
-    from clods_bench.benchmark.executors import default_jobs, make_executor, run_configs
+    from clods_bench.benchmark.running.executors import default_jobs, make_executor, run_configs
 
     jobs = args.jobs or min(default_jobs(), max(1, len(cfg.seeds)))
     if args.executor == "local" and jobs == 1:
@@ -427,7 +427,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _metric_order(key: str) -> tuple:
     """Sort 'group/phase/stat' keys in the paper's column order."""
-    from clods_bench.benchmark.metrics import GROUPS, PHASES, STATS
+    from clods_bench.benchmark.scoring.metrics import GROUPS, PHASES, STATS
 
     order = {name: i for i, name in enumerate((*GROUPS, *PHASES, *STATS))}
     ranks = [order.get(part, 99) for part in key.split("/")]
@@ -441,8 +441,8 @@ def _pm(v: dict) -> str:
 
 
 def cmd_tables(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.records import iter_records, runs_label
-    from clods_bench.benchmark.tables import write_tables
+    from clods_bench.benchmark.running.records import iter_records, runs_label
+    from clods_bench.benchmark.outputs.tables import write_tables
 
     if args.task == "all":
         tasks = [t for t in ("cdg", "nvs", "stability", "dvc", "dvc_multi", "extract") if any(True for _ in iter_records(args.runs, t))]
@@ -459,7 +459,7 @@ def cmd_tables(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.html_report import build_html_report
+    from clods_bench.benchmark.outputs.html_report import build_html_report
 
     paths = build_html_report(args.runs, args.out, args.metric, bench_dir=args.bench)
     console.print("wrote " + ", ".join(str(p) for p in paths))
@@ -467,8 +467,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.executors import default_jobs
-    from clods_bench.benchmark.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
+    from clods_bench.benchmark.running.executors import default_jobs
+    from clods_bench.benchmark.reproduction.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
 
     out = args.out or Path("results") / args.preset
     if args.check is not None and out.resolve() == args.check.resolve():
@@ -519,7 +519,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 def _report_check(committed: Path, fresh: Path, tables: Sequence[str], first_seeds: int | None, preset: str, not_run: Sequence[str] = ()) -> int:
     """`reproduce --check`: print what moved (rows with their first differing stage, table cells) and the tables to regenerate."""
-    from clods_bench.benchmark.regression_check import check_reproduction, regenerate_command
+    from clods_bench.benchmark.reproduction.regression_check import check_reproduction, regenerate_command
 
     if not_run:
         console.print(f"not checked (left by the time budget): {', '.join(not_run)}", highlight=False)
@@ -546,9 +546,9 @@ def _report_check(committed: Path, fresh: Path, tables: Sequence[str], first_see
 def _report_config_changes(committed: Path, runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path], preset: str) -> None:
     """`reproduce --dry-run --check DIR`: the rows whose resolved config differs from the one DIR's digests were made
     with (their record keys differ), and the tables that must be regenerated for them."""
-    from clods_bench.benchmark import run_digests
-    from clods_bench.benchmark.regression_check import regenerate_command
-    from clods_bench.benchmark.reproduce import record_key, run_name
+    from clods_bench.benchmark.reproduction import run_digests
+    from clods_bench.benchmark.reproduction.regression_check import regenerate_command
+    from clods_bench.benchmark.reproduction.reproduce import record_key, run_name
 
     committed_digests = run_digests.load(Path(committed) / run_digests.DIGESTS_FILE)
     current = {run_name(run): record_key(rdir) for (run, _), rdir in zip(runs, rdirs)}
@@ -567,10 +567,10 @@ def _report_config_changes(committed: Path, runs: Sequence[tuple[Any, RunConfig]
 def _record_dirs(runs: Sequence[tuple[Any, RunConfig]], registry: Any) -> list[Path]:
     """Each run's record folder as `reproduce` resolves it: a row whose config differs from an earlier row's only in
     its label reads that row's record; plugin defaults filled, paths absolute."""
-    from clods_bench.benchmark.executors import absolute_paths
-    from clods_bench.benchmark.records import record_dir
-    from clods_bench.benchmark.reproduce import canonical_rows, run_name
-    from clods_bench.benchmark.runner import resolve_plugin_configs
+    from clods_bench.benchmark.running.executors import absolute_paths
+    from clods_bench.benchmark.running.records import record_dir
+    from clods_bench.benchmark.reproduction.reproduce import canonical_rows, run_name
+    from clods_bench.benchmark.running.runner import resolve_plugin_configs
 
     canonical, same_as = canonical_rows(runs)
     dirs = {name: record_dir(resolve_plugin_configs(absolute_paths(copy.deepcopy(cfg)), registry)) for name, cfg in canonical}
@@ -579,14 +579,14 @@ def _record_dirs(runs: Sequence[tuple[Any, RunConfig]], registry: Any) -> list[P
 
 def _finished_seeds(runs: Sequence[tuple[Any, RunConfig]], rdirs: Sequence[Path]) -> list[list[int]]:
     """The seeds of each run whose results are recorded already in its record folder (what `reproduce` would skip)."""
-    from clods_bench.benchmark.records import load_seed_result
+    from clods_bench.benchmark.running.records import load_seed_result
 
     return [[int(s) for s in cfg.seeds if load_seed_result(rdir, int(s)) is not None] for (_, cfg), rdir in zip(runs, rdirs)]
 
 
 def _report_comparison(committed: Path, fresh: Path, tolerance: Path | None, skip_columns: Sequence[str] = (), not_run: Sequence[str] = ()) -> int:
     """Compare and print; `not_run`: table ids a time budget left out, named as not checked (not a failure)."""
-    from clods_bench.benchmark.compare import compare_dirs
+    from clods_bench.benchmark.reproduction.compare import compare_dirs
 
     if not_run:
         console.print(f"not checked (left by the time budget): {', '.join(not_run)}", highlight=False)
@@ -606,7 +606,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_seed_spread(args: argparse.Namespace) -> int:
     from clods_bench.atomic import write_text
-    from clods_bench.benchmark.compare import seed_spread
+    from clods_bench.benchmark.reproduction.compare import seed_spread
 
     frame = seed_spread(args.runs, args.task)
     if frame.empty:
@@ -630,50 +630,50 @@ def cmd_bench(args: argparse.Namespace) -> int:
     frames = 12 if args.frames is None else args.frames
     fit_iterations = 60 if args.fit_iterations is None else args.fit_iterations
     if args.what == "data":
-        from clods_bench.benchmark.bench import bench_data
+        from clods_bench.benchmark.speed.bench import bench_data
 
         bench_data(console, steps=args.steps, views=views)
     elif args.what == "infer":
-        from clods_bench.benchmark.config import load_config
-        from clods_bench.benchmark.infer_bench import check_device
-        from clods_bench.benchmark.infer_output import print_bench_infer
+        from clods_bench.benchmark.core.config import load_config
+        from clods_bench.benchmark.speed.infer_bench import check_device
+        from clods_bench.benchmark.outputs.infer_output import print_bench_infer
 
         check_device(args.device)  # before any work: one line when CUDA is absent
         cfg = load_config(args.preset, None, list(args.overrides))
         print_bench_infer(console, cfg, args.out, progress=not args.no_progress, sim=args.sim, frames=5 if args.frames is None else args.frames,
                           views=args.views, device=args.device, fit_iterations=args.fit_iterations or 0)  # fmt: skip
     elif args.what == "video":
-        from clods_bench.benchmark.config import load_config
-        from clods_bench.benchmark.infer_bench import check_device
-        from clods_bench.benchmark.video_bench import bench_video
+        from clods_bench.benchmark.core.config import load_config
+        from clods_bench.benchmark.speed.infer_bench import check_device
+        from clods_bench.benchmark.speed.video_bench import bench_video
 
         check_device(args.device, where="bench video --device")
         bench_video(console, load_config(args.preset, None, list(args.overrides)), predictors=args.predictors, devices=("cpu", args.device),
                     cpu=args.cpu or args.device == "cpu")
     elif args.what == "store":
-        from clods_bench.benchmark.config import load_config
+        from clods_bench.benchmark.core.config import load_config
         from clods_bench.datasets.store_bench import print_bench_store
 
         cfg = load_config(args.preset, None, list(args.overrides))
         print_bench_store(console, cfg, _registry().get("scene", cfg.data.scene), blocks=args.blocks)
     elif args.what == "render":
-        from clods_bench.plugins.splatting.bench import print_bench_render
+        from clods_bench.splatting.bench import print_bench_render
 
         print_bench_render(console, repeats=args.repeats, size=args.size, num_cameras=views, gsplat=args.gsplat,
                            reference=args.reference)  # fmt: skip
     elif args.what == "determinism":
-        from clods_bench.benchmark.determinism_bench import bench_determinism
+        from clods_bench.benchmark.speed.determinism_bench import bench_determinism
 
         bench_determinism(console, repeats=args.repeats)
     elif args.what == "stage2":
-        from clods_bench.benchmark.clods.stage2_bench import print_bench_stage2
+        from clods_bench.benchmark.speed.stage2_bench import print_bench_stage2
 
         print_bench_stage2(console, preset=args.preset, frames=frames, fit_iterations=fit_iterations,
                            backends=("cpu", "reference") if args.reference else ("cpu",))  # fmt: skip
     else:
-        from clods_bench.benchmark.config import parse_override
-        from clods_bench.benchmark.infer_bench import check_device
-        from clods_bench.benchmark.sim_bench import bench_sim, sim_overrides
+        from clods_bench.benchmark.core.config import parse_override
+        from clods_bench.benchmark.speed.infer_bench import check_device
+        from clods_bench.benchmark.speed.sim_bench import bench_sim, sim_overrides
 
         check_device(args.device, where="bench sim --device")
         sim_config = sim_overrides([parse_override(o) for o in args.overrides])
@@ -727,7 +727,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        from clods_bench.benchmark.plugin_report import plugin_options
+        from clods_bench.benchmark.core.plugin_report import plugin_options
 
         with _switch_for_workers(args.no_deterministic), contextlib.ExitStack() as stack:
             scope = _exact_scope(args)

@@ -22,7 +22,7 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark.config import DataConfig, dataclass_from_dict
+from clods_bench.benchmark.core.config import DataConfig, dataclass_from_dict
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import canonical
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
@@ -34,8 +34,8 @@ from clods_bench.datasets.types import ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.config import RunConfig
-    from clods_bench.benchmark.registry import Registry
+    from clods_bench.benchmark.core.config import RunConfig
+    from clods_bench.benchmark.core.registry import Registry
 
 TEXTURE_FILE = "texture.png"
 FRAME_MODES = ("stored", "on_demand")

@@ -2,7 +2,7 @@
 and the hook specifications. A test compares it with the committed snapshot of `API_VERSION`, so that no change of
 the API goes out without a new version, its snapshot and a changelog entry.
 
-`python -m clods_bench.benchmark.api_surface OUT.json` writes the snapshot of the installed release.
+`python -m clods_bench.docsgen.api_surface OUT.json` writes the snapshot of the installed release.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def describe(obj: Any) -> dict[str, Any]:
 
 def hook_specs() -> dict[str, dict[str, Any]]:
     """Each hook specification: its arguments and pluggy options."""
-    from clods_bench.benchmark.registry import HOOKSPEC_MODULES
+    from clods_bench.benchmark.core.registry import HOOKSPEC_MODULES
 
     out = {}
     for module in HOOKSPEC_MODULES:

@@ -22,7 +22,7 @@ HEADLINE_ROWS = ("Physics", "MGN", "MGN*", "HCMT", "CloDS*", "CloDS**", "CloDS")
 
 def presets_table(root: Path) -> str:
     """One row per built-in preset, read from the preset files through the config loader."""
-    from clods_bench.benchmark.config import load_config, preset_description, preset_names
+    from clods_bench.benchmark.core.config import load_config, preset_description, preset_names
     from clods_bench.plugins.simulators.learned.config import LearnedConfig
 
     lines = ["| preset | seeds | mesh nodes | trajectories (train + test) | frames (interpolation) | cameras (held out) | image | learned simulators train | what for |",
@@ -81,7 +81,7 @@ KINDS = ("task", "simulator", "renderer", "video_predictor", "scene")
 def plugins_table(root: Path, kinds: tuple[str, ...] = KINDS) -> str:
     """Every installed plugin of `kinds` with its description, as `clods-bench list` prints them (the site is built
     where only the built-ins are installed), so no page describes a plugin in other words than its code."""
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     reg = default_registry()
     lines = ["| kind | name | description |" if len(kinds) > 1 else "| name | description |",

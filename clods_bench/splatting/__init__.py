@@ -5,15 +5,15 @@ backends 'cpu' (numba kernels, default), 'reference' (plain torch oracle) and 'g
 Importing this package compiles nothing and never imports numba kernels or gsplat.
 """
 
-from clods_bench.plugins.splatting.projection import (
+from clods_bench.splatting.projection import (
     Projection,
     covariances_from_quats_scales,
     project_gaussians,
     quat_to_rotmat,
     tile_bounds,
 )
-from clods_bench.plugins.splatting.rasterize import RenderOutput, camera_tensors, render_gaussians
-from clods_bench.plugins.splatting.sh import sh_basis, view_colors
+from clods_bench.splatting.rasterize import RenderOutput, camera_tensors, render_gaussians
+from clods_bench.splatting.sh import sh_basis, view_colors
 
 __all__ = [
     "Projection",

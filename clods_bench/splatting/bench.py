@@ -25,8 +25,8 @@ import torch
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.flag_scene import bench_scene
-from clods_bench.plugins.splatting.rasterize import RenderOutput, render_gaussians
+from clods_bench.splatting.flag_scene import bench_scene
+from clods_bench.splatting.rasterize import RenderOutput, render_gaussians
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -189,7 +189,7 @@ def bench_render(repeats: int = 3, seed: int = 0, size: int = 128, num_cameras: 
     reference: time the plain-torch oracle too (its memory grows with pixels x Gaussians per tile: leave it out
     at large image sizes; the ratios are then taken against 'cpu').
     """
-    from clods_bench.plugins.splatting.gsplat_backend import INSTALL_HINT, gsplat_available
+    from clods_bench.splatting.gsplat_backend import INSTALL_HINT, gsplat_available
 
     available, why = gsplat_available() if gsplat is not False else (False, "not asked for")
     if gsplat and not available:

@@ -10,7 +10,7 @@ from torch import Tensor
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.projection import covariances_from_quats_scales
+from clods_bench.splatting.projection import covariances_from_quats_scales
 
 BACKENDS = ("cpu", "reference", "gsplat")
 DEPTH_MODES = ("expected", "accumulated")

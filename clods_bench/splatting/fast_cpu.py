@@ -23,9 +23,9 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from clods_bench.plugins.splatting import fast_kernels as K
-from clods_bench.plugins.splatting import projection_kernels as PK
-from clods_bench.plugins.splatting.projection import EPS2D, FOV_CLAMP
+from clods_bench.splatting import fast_kernels as K
+from clods_bench.splatting import projection_kernels as PK
+from clods_bench.splatting.projection import EPS2D, FOV_CLAMP
 
 KEEP_BYTES = 1 << 30  # at most this much memory for the visits the forward keeps for the backward (else recompute)
 VISIT_BYTES = 8 + 2 * 2  # per kept visit: exp(-sigma) (float64) and the pixel in its tile (2 x int16)

@@ -27,8 +27,8 @@ import torch
 from torch import Tensor
 
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.projection import EPS2D, project_gaussians
-from clods_bench.plugins.splatting.sh import view_colors
+from clods_bench.splatting.projection import EPS2D, project_gaussians
+from clods_bench.splatting.sh import view_colors
 
 INSTALL_HINT = "backend gsplat needs gsplat and a CUDA GPU: pip install gsplat"
 

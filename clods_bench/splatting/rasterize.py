@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from clods_bench.datasets.cameras import Camera
-from clods_bench.plugins.splatting.checks import (
+from clods_bench.splatting.checks import (
     background_tensor,
     check_cameras,
     check_device,
@@ -28,8 +28,8 @@ from clods_bench.plugins.splatting.checks import (
     check_options,
     resolve_covariances,
 )
-from clods_bench.plugins.splatting.projection import EPS2D, project_gaussians, tile_bounds
-from clods_bench.plugins.splatting.sh import sh_degree_of, view_colors
+from clods_bench.splatting.projection import EPS2D, project_gaussians, tile_bounds
+from clods_bench.splatting.sh import sh_degree_of, view_colors
 
 Backend = Literal["cpu", "reference", "gsplat"]
 DepthMode = Literal["expected", "accumulated"]
@@ -85,7 +85,7 @@ def _camera_setup(cameras: Sequence[Camera]) -> dict[str, Any]:
 
 def _camera_arrays(setup: dict[str, Any]) -> Any:
     """The cpu backend's `CameraArrays` of a rig, made once and kept with its `_camera_setup` entry."""
-    from clods_bench.plugins.splatting.fast_cpu import CameraArrays
+    from clods_bench.splatting.fast_cpu import CameraArrays
 
     if setup["arrays"] is None:
         setup["arrays"] = CameraArrays.from_tensors(*setup["tensors"][:3], setup["width"], setup["height"])
@@ -136,7 +136,7 @@ def render_gaussians(
     dtype = means.dtype
     bg = background_tensor(background, len(cameras), dtype)
     if backend == "gsplat":
-        from clods_bench.plugins.splatting.gsplat_backend import render_gsplat
+        from clods_bench.splatting.gsplat_backend import render_gsplat
 
         tile = 16 if tile is None else tile
 
@@ -148,12 +148,12 @@ def render_gaussians(
     rgb_cg = view_colors(colors, means, centers, degree).to(dtype)  # (C,G,3)
     opac_cg = opacities.to(dtype)[None].expand(len(cameras), G)  # (C,G)
     if backend == "cpu":
-        from clods_bench.plugins.splatting.fast_cpu import splat_fast
+        from clods_bench.splatting.fast_cpu import splat_fast
 
         cams = _camera_arrays(setup)
         color, alpha, dacc, radii = splat_fast(means, covars, opac_cg, rgb_cg, cams, near=near, tile=tile)
     else:
-        from clods_bench.plugins.splatting.reference import rasterize_reference
+        from clods_bench.splatting.reference import rasterize_reference
 
         tile = 16 if tile is None else tile
 

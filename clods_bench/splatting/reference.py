@@ -18,7 +18,7 @@ from collections.abc import Iterator
 import torch
 from torch import Tensor
 
-from clods_bench.plugins.splatting.projection import ALPHA_MIN
+from clods_bench.splatting.projection import ALPHA_MIN
 
 ALPHA_MAX = 0.99  # alphas are clamped here so 1 - alpha stays invertible in the backward pass
 T_MIN = 1e-4  # compositing stops before the transmittance would fall below this

@@ -20,8 +20,8 @@ from torch import Tensor
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.checks import check_cameras
-from clods_bench.plugins.splatting.surfels import SurfelBackend, render_surfels, surfel_losses
+from clods_bench.splatting.checks import check_cameras
+from clods_bench.splatting.surfels import SurfelBackend, render_surfels, surfel_losses
 
 F64 = torch.float64
 

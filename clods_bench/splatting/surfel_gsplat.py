@@ -11,7 +11,7 @@ centre's camera z, three zeros and its 2DGS-mapped depth m; m is the last channe
 and median read, and the median z is mapped back from m (m is monotone in z).
 
 Differences from the CPU backends (so agreement holds for opacities up to about 0.35 and, for depth,
-median and distortion, surfels facing the camera; `tests/plugins/splatting/test_surfel_gsplat.py`):
+median and distortion, surfels facing the camera; `tests/splatting/test_surfel_gsplat.py`):
 - depth is the surfel centre's camera z at every pixel it covers (gsplat carries depth as a per-surfel
   channel); the CPU backends use the ray-splat hit's z, which differs by the surfel's slope across it;
 - no 3-sigma cut: gsplat composites every surfel with alpha >= 1/255 in the tiles its radii cover, which
@@ -28,7 +28,7 @@ import math
 import torch
 from torch import Tensor
 
-from clods_bench.plugins.splatting.gsplat_backend import order_keys
+from clods_bench.splatting.gsplat_backend import order_keys
 
 CHANNELS = 8
 """Channels handed to gsplat: RGB, z, three zeros, m. gsplat 1.5.3 has 2DGS kernels for 1-4, 8, 16, ... channels and

@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from clods_bench.plugins.splatting.fast_kernels import tile_rect
+from clods_bench.splatting.fast_kernels import tile_rect
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99

@@ -52,10 +52,10 @@ from torch.autograd.function import once_differentiable
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.checks import background_tensor, check_cameras, check_finite, check_shape
-from clods_bench.plugins.splatting.projection import quat_to_rotmat
-from clods_bench.plugins.splatting.rasterize import camera_tensors
-from clods_bench.plugins.splatting.reference import tile_walk
+from clods_bench.splatting.checks import background_tensor, check_cameras, check_finite, check_shape
+from clods_bench.splatting.projection import quat_to_rotmat
+from clods_bench.splatting.rasterize import camera_tensors
+from clods_bench.splatting.reference import tile_walk
 
 SurfelBackend = Literal["cpu", "reference", "gsplat"]
 BACKENDS = ("cpu", "reference", "gsplat")
@@ -257,8 +257,8 @@ class _SurfelRasterCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, M, means2d, depths, normals, colors, opac, boxes, width, height, near):  # noqa: D102
-        from clods_bench.plugins.splatting import fast_kernels as FK
-        from clods_bench.plugins.splatting import surfel_kernels as SK
+        from clods_bench.splatting import fast_kernels as FK
+        from clods_bench.splatting import surfel_kernels as SK
 
         C, G = depths.shape
         tiles_x, tiles_y = math.ceil(width / TILE), math.ceil(height / TILE)
@@ -278,7 +278,7 @@ class _SurfelRasterCPU(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, v_out):  # noqa: D102
-        from clods_bench.plugins.splatting import surfel_kernels as SK
+        from clods_bench.splatting import surfel_kernels as SK
 
         args, (t_final, n_last, med) = ctx.args, ctx.state
         offsets, ids = args[7], args[8]
@@ -391,8 +391,8 @@ def unmapped_depth(m: Tensor) -> Tensor:
 
 def _render_gsplat(means, quats, scales, opacities, colors, cameras, background, near, width, height) -> SurfelOutput:
     """render_surfels through gsplat's 2DGS kernels (`surfel_gsplat`), maps returned like the CPU backends'."""
-    from clods_bench.plugins.splatting import gsplat_backend
-    from clods_bench.plugins.splatting.surfel_gsplat import raster_surfels_gsplat
+    from clods_bench.splatting import gsplat_backend
+    from clods_bench.splatting.surfel_gsplat import raster_surfels_gsplat
 
     ok, why = gsplat_backend.gsplat_available()
     if not ok:

@@ -23,17 +23,17 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from clods_bench.benchmark.builders import data_splits
+from clods_bench.benchmark.core.builders import data_splits
 from clods_bench.benchmark.clods import stage0 as S
 from clods_bench.benchmark.clods.sheet_mesh import _frame, sheet_from_points
 from clods_bench.benchmark.clods.sheet_refine import refine_sheet
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.cross_topology import attach
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.rasterizer import render_depth
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import ClothMesh
-from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
 
 def sample_surface(verts: np.ndarray, cells: np.ndarray, n: int, seed: int = 0) -> np.ndarray:

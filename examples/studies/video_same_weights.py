@@ -39,7 +39,7 @@ from clods_bench.plugins.video.tau import TauConfig, TauPredictor
 from clods_bench.plugins.video.tau_model import differential_divergence
 
 B, T, H = 2, 5, 64
-PRESET = Path(__file__).resolve().parents[2] / "clods_bench/benchmark/presets/ci.yaml"
+PRESET = Path(__file__).resolve().parents[2] / "clods_bench/benchmark/core/presets/ci.yaml"
 
 
 def ci_config(name: str, cls: type) -> Any:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark.cli import main
+from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 from tests.conftest import TINY
 

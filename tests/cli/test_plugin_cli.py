@@ -10,10 +10,10 @@ from typing import Iterator
 
 import pytest
 
-import clods_bench.benchmark.registry as registry_module
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.registry import STRICT_ENV, default_registry
-from tests.benchmark.plugin_packages import PACKAGES, install_all, module_name, run_cli
+import clods_bench.benchmark.core.registry as registry_module
+from clods_bench.cli import main
+from clods_bench.benchmark.core.registry import STRICT_ENV, default_registry
+from tests.plugin_packages import PACKAGES, install_all, module_name, run_cli
 from tests.conftest import TINY
 
 FAILING = ["broken-import", "hook-raises", "newer-api", "wrong-type", "config-no-default", "config-no-type", "twin-b"]

@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 
 from clods_bench import numerics as dm
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.determinism import check_numeric_paths, effective_paths
+from clods_bench.cli import main
+from clods_bench.benchmark.core.determinism import check_numeric_paths, effective_paths
 from clods_bench.errors import ClodsError
 
-COMMITTED = json.loads((Path(__file__).parent / "benchmark" / "data" / "determinism_probe.json").read_text())
+COMMITTED = json.loads((Path(__file__).parents[1] / "benchmark" / "speed" / "data" / "determinism_probe.json").read_text())
 X86_AVX2 = not dm.missing_cpu_features()
 
 
@@ -39,7 +39,7 @@ def test_the_test_session_runs_on_the_pinned_paths() -> None:
 def test_each_model_family_gives_the_committed_bits(family: str) -> None:
     """The digests were made on another CPU (see the file's `made_on`); on the host's own paths they differ
     (`CLODS_BENCH_DETERMINISTIC=0 pytest tests/test_deterministic_mode.py` fails here on an AVX-512 CPU)."""
-    from clods_bench.benchmark.determinism_probe import probe
+    from clods_bench.benchmark.speed.determinism_probe import probe
 
     assert probe((family,))[family]["digest"] == COMMITTED["digests"][family]
 
@@ -53,7 +53,7 @@ def test_a_cpu_without_avx2_gets_one_line_and_exit_2(monkeypatch: pytest.MonkeyP
 
 
 def test_numpy_imported_before_clods_bench_is_named(tmp_path: Path) -> None:
-    code = "import numpy, clods_bench\nfrom clods_bench.benchmark.determinism import check_numeric_paths\ncheck_numeric_paths()"
+    code = "import numpy, clods_bench\nfrom clods_bench.benchmark.core.determinism import check_numeric_paths\ncheck_numeric_paths()"
     env = {k: v for k, v in os.environ.items() if k not in dm.pins()}  # a fresh process: nothing pinned beforehand
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert out.returncode != 0 and "numpy loaded before clods_bench, so deterministic mode could not pin its floating-point paths" in out.stderr
@@ -72,7 +72,7 @@ def test_no_deterministic_reruns_the_command_on_the_host_paths() -> None:
 
 def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.MonkeyPatch) -> None:
     from clods_bench.benchmark.clods.cache import digest
-    from clods_bench.benchmark.records import record_dir
+    from clods_bench.benchmark.running.records import record_dir
     from tests.conftest import tiny_config
 
     cfg = tiny_config(Path("/tmp/x"), sim="constvel")
@@ -121,7 +121,7 @@ def test_emulated_intel_and_amd_cpus_give_the_committed_bits(cpu: str) -> None:
     instruction set, and under the pins all take the same arithmetic. QEMU computes IEEE arithmetic exactly and the
     CPU's approximate instructions its own way, so this also shows that no pinned path depends on those (before
     `exact_math`, MKL's vector sqrt did: see the file's `before_exact_math`)."""
-    code = "import clods_bench, json\nfrom clods_bench.benchmark.determinism_probe import probe\nprint(json.dumps({k: v['digest'] for k, v in probe().items()}))"
+    code = "import clods_bench, json\nfrom clods_bench.benchmark.speed.determinism_probe import probe\nprint(json.dumps({k: v['digest'] for k, v in probe().items()}))"
     out = subprocess.run(["qemu-x86_64", "-cpu", cpu, sys.executable, "-c", code], capture_output=True, text=True, timeout=3000)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == COMMITTED["digests"]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from clods_bench.datasets.cameras import Camera, camera_rig
-from clods_bench.plugins.splatting import covariances_from_quats_scales
+from clods_bench.splatting import covariances_from_quats_scales
 
 
 def head_on_camera(width: int = 40, height: int = 24, f: float = 100.0) -> Camera:

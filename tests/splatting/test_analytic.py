@@ -7,8 +7,8 @@ import math
 import pytest
 import torch
 
-from clods_bench.plugins.splatting import render_gaussians
-from tests.plugins.splatting.conftest import head_on_camera
+from clods_bench.splatting import render_gaussians
+from tests.splatting.conftest import head_on_camera
 
 BACKENDS = ["cpu", "reference"]
 

@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import render_gaussians
-from clods_bench.plugins.splatting.gsplat_backend import gsplat_available
-from tests.plugins.splatting.conftest import random_scene
+from clods_bench.splatting import render_gaussians
+from clods_bench.splatting.gsplat_backend import gsplat_available
+from tests.splatting.conftest import random_scene
 
 TOL = 1e-5  # required agreement; float64 runs agree to ~1e-10
 
@@ -80,7 +80,7 @@ def test_tile_size_does_not_change_the_image(backend: str) -> None:
 
 
 def test_auto_tile_cuts_the_rig_into_enough_tiles() -> None:
-    from clods_bench.plugins.splatting.fast_cpu import auto_tile
+    from clods_bench.splatting.fast_cpu import auto_tile
 
     assert auto_tile(8, 128, 128) == 64  # bench render: 32 tiles of 64 px
     assert auto_tile(4, 64, 64) == 32  # ci: 16 tiles of 32 px (64 px would leave 4)
@@ -106,7 +106,7 @@ def test_kept_visits_fit_the_bound_cover_every_live_pixel_and_match_math_exp() -
     Gaussian contributes to (brute force over each Gaussian's pixel box)."""
     import math
 
-    from clods_bench.plugins.splatting import fast_kernels as K
+    from clods_bench.splatting import fast_kernels as K
 
     kept = {}
     orig = K.raster_fwd
@@ -160,7 +160,7 @@ def test_kept_visits_fit_the_bound_cover_every_live_pixel_and_match_math_exp() -
 
 def test_backward_without_kept_visits_gives_the_same_gradients(monkeypatch) -> None:
     """Over the memory budget the forward keeps nothing and the backward recomputes: bit-identical gradients."""
-    from clods_bench.plugins.splatting import fast_cpu
+    from clods_bench.splatting import fast_cpu
 
     scene = random_scene(200, seed=12)
     cameras = camera_rig(3, np.zeros(3), 2.5, 40, 36)
@@ -176,7 +176,7 @@ def test_backward_without_kept_visits_gives_the_same_gradients(monkeypatch) -> N
 def test_exp_neg_is_within_a_few_ulp_of_numpy() -> None:
     from numba import njit
 
-    from clods_bench.plugins.splatting.fast_kernels import exp_neg
+    from clods_bench.splatting.fast_kernels import exp_neg
 
     @njit
     def many(x):
@@ -194,7 +194,7 @@ def _gsplat_scene(kind: str) -> tuple[dict, list]:
     """Volumetric random Gaussians, or the flat cloth Gaussians of `bench render` (where a float32 projection fails)."""
     if kind == "random":
         return random_scene(300, seed=6, dtype=torch.float32), camera_rig(3, np.zeros(3), 2.5, 64, 48)
-    from clods_bench.plugins.splatting.flag_scene import bench_scene
+    from clods_bench.splatting.flag_scene import bench_scene
 
     return bench_scene(0, 96, 3)
 
@@ -226,8 +226,8 @@ def test_gsplat_backend_matches_the_reference_and_the_cpu(kind: str) -> None:
 def test_fast_backend_matches_reference_flat_dense_and_empty_tiles() -> None:
     # flat Gaussians nearly edge-on (thin slanted ellipses: the kernels' per-row chords), 150 of them crowded
     # into one tile, and tiles with nothing in them
-    from tests.plugins.splatting.test_fast_projection import _flat_edge_on_scene
-    from tests.plugins.splatting.conftest import head_on_camera
+    from tests.splatting.test_fast_projection import _flat_edge_on_scene
+    from tests.splatting.conftest import head_on_camera
 
     scene = _flat_edge_on_scene(250, seed=21)
     scene["means"][:150, :2] = scene["means"][:150, :2] * 0.03 - torch.tensor([0.25, 0.2], dtype=torch.float64)
@@ -244,7 +244,7 @@ def test_fast_backend_matches_reference_flat_dense_and_empty_tiles() -> None:
 def test_order_keys_rank_float64_depths_exactly() -> None:
     """gsplat gets ranks as sort keys: their float32 order is the stable order of the float64 depths, where the
     float32 depths themselves would tie."""
-    from clods_bench.plugins.splatting.gsplat_backend import order_keys
+    from clods_bench.splatting.gsplat_backend import order_keys
 
     d = torch.tensor([[2.6000000015, 2.6000000089, 1.0, 2.6000000015]], dtype=torch.float64)
     assert d[0, 0].float() == d[0, 1].float()  # a float32 tie

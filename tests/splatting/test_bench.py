@@ -6,7 +6,7 @@ import pytest
 import torch
 from rich.console import Console
 
-from clods_bench.plugins.splatting.bench import _PeakRSS, bench_render, bench_scene, render_table
+from clods_bench.splatting.bench import _PeakRSS, bench_render, bench_scene, render_table
 
 
 def test_bench_scene_is_the_flag_with_five_flat_gaussians_per_face() -> None:

@@ -8,8 +8,8 @@ import torch
 
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting import render_gaussians
-from tests.plugins.splatting.conftest import head_on_camera, random_scene
+from clods_bench.splatting import render_gaussians
+from tests.splatting.conftest import head_on_camera, random_scene
 
 BACKENDS = ["cpu", "reference"]
 F64 = torch.float64
@@ -109,7 +109,7 @@ def test_invalid_inputs_raise_clods_error() -> None:
 
 
 def test_gsplat_backend_without_gsplat_or_cuda_raises_install_hint() -> None:
-    from clods_bench.plugins.splatting.gsplat_backend import gsplat_available
+    from clods_bench.splatting.gsplat_backend import gsplat_available
 
     if gsplat_available()[0]:
         pytest.skip("gsplat and CUDA are available here; the error path cannot be exercised")

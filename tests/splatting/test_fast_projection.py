@@ -7,10 +7,10 @@ import numpy as np
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import camera_tensors, project_gaussians, render_gaussians, tile_bounds
-from clods_bench.plugins.splatting.fast_cpu import CameraArrays
-from clods_bench.plugins.splatting.projection import EPS2D
-from tests.plugins.splatting.conftest import head_on_camera, random_scene
+from clods_bench.splatting import camera_tensors, project_gaussians, render_gaussians, tile_bounds
+from clods_bench.splatting.fast_cpu import CameraArrays
+from clods_bench.splatting.projection import EPS2D
+from tests.splatting.conftest import head_on_camera, random_scene
 
 
 def _flat_edge_on_scene(G: int, seed: int) -> dict:
@@ -29,7 +29,7 @@ def _flat_edge_on_scene(G: int, seed: int) -> dict:
 
 def _numba_projection(scene: dict, cameras, tile: int = 16):
     """project_fwd outputs for `scene` (float64)."""
-    from clods_bench.plugins.splatting import projection_kernels as PK
+    from clods_bench.splatting import projection_kernels as PK
 
     Ks, Rs, ts, _ = camera_tensors(cameras)
     W, H = cameras[0].width, cameras[0].height
@@ -42,7 +42,7 @@ def _numba_projection(scene: dict, cameras, tile: int = 16):
 
 
 def _check_projection(scene: dict, cameras) -> None:
-    from clods_bench.plugins.splatting import projection_kernels as PK
+    from clods_bench.splatting import projection_kernels as PK
 
     Ks, Rs, ts, _ = camera_tensors(cameras)
     W, H = cameras[0].width, cameras[0].height
@@ -85,7 +85,7 @@ def test_numba_projection_matches_torch_autograd_flat_edge_on() -> None:
 def test_float32_render_equals_float64_render_of_the_same_gaussians() -> None:
     # the flat cloth Gaussians of `bench render`, many seen nearly edge-on, at 64 px: the old backend cast depths
     # and centres to float32 between projection and compositing, which reordered near-tied Gaussians (off by 2.2e-2)
-    from clods_bench.plugins.splatting.flag_scene import bench_scene
+    from clods_bench.splatting.flag_scene import bench_scene
 
     f32, cams = bench_scene(0, 64, 8, dtype=torch.float32)
     same = {k: v.double() for k, v in f32.items()}
@@ -97,7 +97,7 @@ def test_float32_render_equals_float64_render_of_the_same_gaussians() -> None:
 
 def test_radix_depth_order_equals_a_stable_sort() -> None:
     """The binning's depth order: an LSD radix sort of the keys' bits, against numpy's stable argsort (ties by index)."""
-    from clods_bench.plugins.splatting.fast_kernels import stable_argsort_positive
+    from clods_bench.splatting.fast_kernels import stable_argsort_positive
 
     rng = np.random.default_rng(0)
     for trial in range(120):

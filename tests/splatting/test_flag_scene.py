@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import render_gaussians
-from clods_bench.plugins.splatting.flag_scene import BARYCENTRICS, face_gaussians
+from clods_bench.splatting import render_gaussians
+from clods_bench.splatting.flag_scene import BARYCENTRICS, face_gaussians
 
 F64 = torch.float64
 BACKENDS = ["cpu", "reference"]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import covariances_from_quats_scales, render_gaussians
+from clods_bench.splatting import covariances_from_quats_scales, render_gaussians
 
 BACKENDS = ["cpu", "reference"]
 

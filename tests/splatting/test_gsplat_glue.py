@@ -15,11 +15,11 @@ import pytest
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import gsplat_backend
-from clods_bench.plugins.splatting.projection import tile_bounds
-from clods_bench.plugins.splatting.reference import rasterize_reference
-from tests.plugins.splatting.conftest import random_scene
-from tests.plugins.splatting.test_backends import _render_with_grads
+from clods_bench.splatting import gsplat_backend
+from clods_bench.splatting.projection import tile_bounds
+from clods_bench.splatting.reference import rasterize_reference
+from tests.splatting.conftest import random_scene
+from tests.splatting.test_backends import _render_with_grads
 
 
 def _fake_gsplat() -> types.ModuleType:

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import (
+from clods_bench.splatting import (
     camera_tensors,
     covariances_from_quats_scales,
     project_gaussians,
@@ -18,7 +18,7 @@ from clods_bench.plugins.splatting import (
     tile_bounds,
     view_colors,
 )
-from tests.plugins.splatting.conftest import random_scene
+from tests.splatting.conftest import random_scene
 
 
 def test_means_project_like_camera_project_and_conics_invert_covars2d() -> None:
@@ -81,8 +81,8 @@ def test_sh_colours_follow_3dgs_convention() -> None:
 
 def test_importing_the_package_loads_neither_numba_kernels_nor_gsplat() -> None:
     code = (
-        "import sys, clods_bench.plugins.splatting as s; "
-        "bad = [m for m in ('clods_bench.plugins.splatting.fast_kernels', 'gsplat', 'numba') if m in sys.modules]; "
+        "import sys, clods_bench.splatting as s; "
+        "bad = [m for m in ('clods_bench.splatting.fast_kernels', 'gsplat', 'numba') if m in sys.modules]; "
         "print(bad); sys.exit(1 if bad else 0)"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
@@ -90,7 +90,7 @@ def test_importing_the_package_loads_neither_numba_kernels_nor_gsplat() -> None:
 
 
 def test_quats_and_scales_render_like_their_covariances() -> None:
-    from clods_bench.plugins.splatting import render_gaussians
+    from clods_bench.splatting import render_gaussians
 
     g = torch.Generator().manual_seed(2)
     scene = random_scene(30, seed=2, dtype=torch.float32)

@@ -14,9 +14,9 @@ import torch
 
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting import gsplat_backend
-from clods_bench.plugins.splatting.surfel_gsplat import box_radii
-from clods_bench.plugins.splatting.surfels import project_surfels, render_surfels
+from clods_bench.splatting import gsplat_backend
+from clods_bench.splatting.surfel_gsplat import box_radii
+from clods_bench.splatting.surfels import project_surfels, render_surfels
 
 F64 = torch.float64
 ALL = ("rgb", "alpha", "depth_median", "depth_expected", "normal", "distortion")

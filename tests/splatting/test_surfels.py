@@ -12,8 +12,8 @@ import torch
 
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting import surfel_kernels as SK
-from clods_bench.plugins.splatting.surfels import (
+from clods_bench.splatting import surfel_kernels as SK
+from clods_bench.splatting.surfels import (
     depth_normals,
     intersect_reference,
     project_surfels,
@@ -315,7 +315,7 @@ def _box_points(n: int, seed: int = 0) -> torch.Tensor:
 
 
 def test_fit_smoke() -> None:
-    from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+    from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
     images, cameras, _ = _square_views(16)
     params, hist = fit_surfels(images, cameras, _box_points(60), None, 12, regularize_from=0.5)
@@ -335,7 +335,7 @@ def test_fit_smoke() -> None:
 
 @pytest.mark.slow
 def test_fit_flat_square_recovers_its_depth() -> None:
-    from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+    from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
     images, cameras, gt = _square_views(32)
     params, hist = fit_surfels(images, cameras, _box_points(300), None, 150, seed=0)

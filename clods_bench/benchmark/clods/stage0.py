@@ -23,7 +23,7 @@ from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import ClothMesh
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
 WHERE = "task_config.initial_mesh"
 

@@ -144,8 +144,8 @@ class RunConfig:
 
 
 def preset_names() -> list[str]:
-    """Names of the built-in presets (YAML files shipped in clods_bench/benchmark/presets)."""
-    folder = resources.files("clods_bench.benchmark") / "presets"
+    """Names of the built-in presets (YAML files shipped in clods_bench/benchmark/core/presets)."""
+    folder = resources.files("clods_bench.benchmark.core") / "presets"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
@@ -153,7 +153,7 @@ def preset_path(name: str) -> Path:
     """The YAML file of a built-in preset; unknown names get a did-you-mean error."""
     if name not in preset_names():
         raise unknown_name("preset", name, preset_names())
-    return Path(str(resources.files("clods_bench.benchmark") / "presets" / f"{name}.yaml"))
+    return Path(str(resources.files("clods_bench.benchmark.core") / "presets" / f"{name}.yaml"))
 
 
 def read_yaml(path: Path) -> dict[str, Any]:

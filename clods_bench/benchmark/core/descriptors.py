@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Literal, Mapping
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.config import RunConfig
+    from clods_bench.benchmark.core.config import RunConfig
     from clods_bench.datasets.scenes import SceneSpec
 
 
@@ -43,7 +43,7 @@ class PluginSpec:
 
     def make_config(self, values: Mapping[str, Any], where: str) -> Any:
         """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys."""
-        from clods_bench.benchmark.config import dataclass_from_dict
+        from clods_bench.benchmark.core.config import dataclass_from_dict
 
         return dataclass_from_dict(self.config_cls, dict(values), where)
 
@@ -65,7 +65,7 @@ class TaskContext:
     config: "RunConfig"
     seed: int
     work_dir: Path
-    registry: Any  # clods_bench.benchmark.registry.Registry (Any to avoid an import cycle)
+    registry: Any  # clods_bench.benchmark.core.registry.Registry (Any to avoid an import cycle)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from clods_bench.benchmark.config import DataConfig, RunConfig, data_with_overrides, dataclass_from_dict
+from clods_bench.benchmark.core.config import DataConfig, RunConfig, data_with_overrides, dataclass_from_dict
 from clods_bench.errors import ClodsError
 
 WHERE = "task_config.cdg"

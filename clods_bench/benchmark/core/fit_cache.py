@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.clods.cache import digest
-from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.core.descriptors import TaskContext
 
 FIT_CACHE_DIR = "fit_cache"
 IDENTITY_FILE = "identity.json"

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from clods_bench.benchmark import stage_digests
+from clods_bench.benchmark.core import stage_digests
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 

@@ -11,7 +11,7 @@ import typing
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from clods_bench.benchmark.descriptors import PluginSpec, TaskSpec
+from clods_bench.benchmark.core.descriptors import PluginSpec, TaskSpec
 from clods_bench.datasets.scenes import SceneSpec
 from clods_bench.errors import ClodsError
 

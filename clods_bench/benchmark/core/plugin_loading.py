@@ -21,7 +21,7 @@ from typing import Any, Callable
 import pluggy
 
 from clods_bench.api_version import DECLARATION, PluginAPIDeprecationWarning, api_version_problem
-from clods_bench.benchmark.hookspecs import ENTRY_POINT_GROUP, PROJECT
+from clods_bench.benchmark.core.hookspecs import ENTRY_POINT_GROUP, PROJECT
 from clods_bench.errors import ClodsError
 
 DISTRIBUTION = "clods-bench"

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from clods_bench.api_version import API_VERSION, PluginAPIDeprecationWarning
-from clods_bench.benchmark.registry import STRICT_ENV, PluginLoadWarning, Registry
+from clods_bench.benchmark.core.registry import STRICT_ENV, PluginLoadWarning, Registry
 
 
 @contextlib.contextmanager

@@ -17,9 +17,9 @@ from typing import Any, Iterable
 import pluggy
 
 from clods_bench.api_version import PluginAPIDeprecationWarning
-from clods_bench.benchmark.hookspecs import renderers, scenes, simulators, tasks, video_predictors
-from clods_bench.benchmark.plugin_checks import check_hook_result
-from clods_bench.benchmark.plugin_loading import (
+from clods_bench.benchmark.core.hookspecs import renderers, scenes, simulators, tasks, video_predictors
+from clods_bench.benchmark.core.plugin_checks import check_hook_result
+from clods_bench.benchmark.core.plugin_loading import (
     ClodsPluginManager,
     PluginFailure,
     PluginNotice,

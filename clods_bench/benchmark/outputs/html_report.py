@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from clods_bench.atomic import write_text
-from clods_bench.benchmark.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
-from clods_bench.benchmark.records import iter_records
+from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
+from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
 
 INDEX_FILE = "index.html"
@@ -84,7 +84,7 @@ def _seed_mesh_samples(rdir: Path, seeds: int = 1) -> list[Path]:
 def infer_section(bench_dir: Path, out_dir: Path) -> tuple[str, list[Path]]:
     """HTML of the `bench infer` results in `bench_dir` (table, stacked-bar plot redrawn into `out_dir`, caps and notes);
     ('', []) when there is none."""
-    from clods_bench.benchmark.infer_output import PLOT_FILE, infer_table, load_infer_results, plot_infer, result_label
+    from clods_bench.benchmark.outputs.infer_output import PLOT_FILE, infer_table, load_infer_results, plot_infer, result_label
 
     results = load_infer_results(bench_dir) if Path(bench_dir).is_dir() else []
     if not results:
@@ -109,8 +109,8 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
     Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
     `bench infer` results there (`infer_*.json`) get a section of their own.
     """
-    from clods_bench.benchmark.reproduce import table_frames
-    from clods_bench.benchmark.report import HEADLINE, write_report
+    from clods_bench.benchmark.reproduction.reproduce import table_frames
+    from clods_bench.benchmark.outputs.report import HEADLINE, write_report
 
     runs_dir, out_dir = Path(runs_dir), Path(out_dir)
     infer_html, infer_files = infer_section(bench_dir, out_dir) if bench_dir is not None else ("", [])
@@ -146,7 +146,7 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
                 parts.append(media_html(out_dir / f"training_curves_{scene}_{preset}.png",
                                         "training curves: each weight snapshot's long rollouts scored like the final model (mean over seeds)"))  # fmt: skip
             if task == "extract":  # E-GT per frame, one line per setting
-                from clods_bench.benchmark.report import mean_curves, plot_curves
+                from clods_bench.benchmark.outputs.report import mean_curves, plot_curves
 
                 png = out_dir / f"extraction_egt_{scene}_{preset}_{len(written)}.png".replace(" ", "_")
                 egt = any("egt_avg" in rec["metrics"] for _, rec in items)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from clods_bench.atomic import atomic_path, write_json, write_text
-from clods_bench.benchmark.infer_bench import PARTS, PIPELINES
+from clods_bench.benchmark.speed.infer_bench import PARTS, PIPELINES
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -155,7 +155,7 @@ def print_bench_infer(console: "Console", cfg: Any, out_dir: Path, progress: boo
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from clods_bench.benchmark.infer_bench import bench_infer
+    from clods_bench.benchmark.speed.infer_bench import bench_infer
 
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=True, disable=not progress) as bar:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clods_bench.benchmark.mesh_pictures import load_mesh_sample
+from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.datasets.mesh_io import export_sequence, flatten_rest
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError

@@ -10,8 +10,8 @@ from typing import Any, Sequence
 import pandas as pd
 
 from clods_bench.atomic import write_text
-from clods_bench.benchmark.metrics import GROUPS, PHASES, STATS
-from clods_bench.benchmark.records import iter_records, runs_label
+from clods_bench.benchmark.scoring.metrics import GROUPS, PHASES, STATS
+from clods_bench.benchmark.running.records import iter_records, runs_label
 from clods_bench.errors import ClodsError
 
 GROUP_NAMES = {"viewed": "Viewed", "unviewed": "Unviewed"}

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from clods_bench.atomic import atomic_path, write_text
-from clods_bench.benchmark.records import iter_records, load_seed_result
+from clods_bench.benchmark.running.records import iter_records, load_seed_result
 
 CURVE_COLUMNS = ["label", "seed", "step", "train_loss", "rmse", "max_strain", "diverged_fraction", "first_divergence"]
 

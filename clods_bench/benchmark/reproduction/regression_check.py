@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from clods_bench.benchmark import run_digests
-from clods_bench.benchmark.compare import TOLERANCE_FILE, compare_dirs, load_tolerance
-from clods_bench.benchmark.reproduce import FIRST_SEED_DIR
+from clods_bench.benchmark.reproduction import run_digests
+from clods_bench.benchmark.reproduction.compare import TOLERANCE_FILE, compare_dirs, load_tolerance
+from clods_bench.benchmark.reproduction.reproduce import FIRST_SEED_DIR
 from clods_bench.errors import ClodsError
 
 

@@ -1,6 +1,6 @@
 """`clods-bench reproduce`: run the paper's tables from a plan (YAML data) and write them with a manifest.
 
-The plan (`clods_bench/benchmark/plans/reproduce.yaml` by default) lists tables and runs; each
+The plan (`clods_bench/benchmark/reproduction/plans/reproduce.yaml` by default) lists tables and runs; each
 run names its task, plugins, row label, `--set` overrides and the table it belongs to. Adding
 a row is editing YAML. Every run is checked before anything starts: an unregistered task or
 plugin, an unknown config key or a run pointing at an unknown table fails the whole command,
@@ -24,10 +24,10 @@ from rich.console import Console
 
 from clods_bench import numerics
 from clods_bench.atomic import write_json, write_text
-from clods_bench.benchmark import run_digests
-from clods_bench.benchmark.config import RunConfig, dataclass_from_dict, load_config, read_yaml
-from clods_bench.benchmark.environment import git_commit, package_versions
-from clods_bench.benchmark.records import RECORD_FILE, restrict
+from clods_bench.benchmark.reproduction import run_digests
+from clods_bench.benchmark.core.config import RunConfig, dataclass_from_dict, load_config, read_yaml
+from clods_bench.benchmark.running.environment import git_commit, package_versions
+from clods_bench.benchmark.running.records import RECORD_FILE, restrict
 from clods_bench.errors import ClodsError
 
 PLAN_VERSION = 1
@@ -93,7 +93,7 @@ class ReproducePlan:
 
 def default_plan_path() -> Path:
     """The built-in plan shipped with the package."""
-    return Path(str(resources.files("clods_bench.benchmark") / "plans" / "reproduce.yaml"))
+    return Path(str(resources.files("clods_bench.benchmark.reproduction") / "plans" / "reproduce.yaml"))
 
 
 def load_plan(path: Path | None = None) -> ReproducePlan:
@@ -160,7 +160,7 @@ def build_configs(
     """
     if first_seeds is not None and first_seeds < 1:
         raise ClodsError(f"first_seeds must be >= 1, got {first_seeds}", where="--first-seeds")
-    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs
+    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs
 
     problems: list[str] = []
     tables = {t.id: t for t in plan.tables}
@@ -211,7 +211,7 @@ def build_configs(
 
 def generic_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Any task's records as a table: one 'mean ± std' column per metric, timing means as 'time/<key>' columns."""
-    from clods_bench.benchmark.tables import fmt_cell
+    from clods_bench.benchmark.outputs.tables import fmt_cell
 
     metric_keys = sorted({k for r in records for k in r["metrics"]})
     timing_keys = sorted({k for r in records for k in r["timings"] if not k.startswith("fit/")})
@@ -237,7 +237,7 @@ def generic_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataF
 
 def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, str]:
     """(display, numeric, footnote) in the layout of `task`; tasks without a dedicated layout get `generic_frame`."""
-    from clods_bench.benchmark import tables
+    from clods_bench.benchmark.outputs import tables
 
     if task in ("cdg", "stability"):
         display, numeric = (tables.cdg_frame if task == "cdg" else tables.stability_frame)(records)
@@ -256,7 +256,7 @@ FIRST_SEED_DIR = "first_seed"
 
 def write_plan_table(table: PlanTable, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
     """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table, rows in plan order."""
-    from clods_bench.benchmark.tables import scored_scenes, to_markdown
+    from clods_bench.benchmark.outputs.tables import scored_scenes, to_markdown
 
     display, numeric, note = table_frames(table.task, records)
     seeds = "/".join(str(n) for n in sorted({len(r["seeds"]) for r in records}))
@@ -303,7 +303,7 @@ def reproduce(
     finish is not written but listed under the manifest's `unfinished` (table id -> row labels), and a later call
     resumes it.
     """
-    from clods_bench.benchmark.executors import make_executor, run_configs
+    from clods_bench.benchmark.running.executors import make_executor, run_configs
 
     t_start = time.perf_counter()
     if budget_seconds is not None and not budget_seconds > 0:

@@ -19,7 +19,7 @@ from typing import Any, Iterable, Mapping
 
 from clods_bench import __version__, numerics
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.stage_digests import STAGES
+from clods_bench.benchmark.core.stage_digests import STAGES
 from clods_bench.errors import ClodsError
 
 DIGESTS_FILE = "digests.json"

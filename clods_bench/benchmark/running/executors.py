@@ -25,8 +25,8 @@ from rich.console import Console
 from rich.progress import Progress
 
 from clods_bench import numerics
-from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
-from clods_bench.benchmark.records import load_seed_result, record_dir, reusable_seed_result
+from clods_bench.benchmark.core.config import RunConfig, dataclass_from_dict
+from clods_bench.benchmark.running.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.threads import MAX_THREADS_ENV
 
@@ -80,8 +80,8 @@ def _same_scene(store: Any, cfg: RunConfig, registry: Any) -> bool:
 
 def run_seed_job(job: SeedJob) -> dict[str, Any]:
     """Run one seed of one run (in whatever process executes it); return {'name', 'seed', 'record_dir', 'wall_seconds'}."""
-    from clods_bench.benchmark.registry import default_registry
-    from clods_bench.benchmark.runner import run_task
+    from clods_bench.benchmark.core.registry import default_registry
+    from clods_bench.benchmark.running.runner import run_task
 
     cfg = dataclass_from_dict(RunConfig, dict(job.config), where=f"job {job.name}")
     cfg.seeds = [int(job.seed)]
@@ -413,7 +413,7 @@ def run_configs(
     """
     if deadline is not None and executor.name != "local":  # before any dataset is generated
         raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
-    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs, run_data_digests, run_task, task_datasets
+    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs, run_data_digests, run_task, task_datasets
 
     for name, cfg in configs:
         check_plugins(cfg, registry)

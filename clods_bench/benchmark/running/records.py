@@ -17,10 +17,10 @@ from typing import Any, Iterator, Sequence
 
 from clods_bench import numerics
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.config import RunConfig
-from clods_bench.benchmark.descriptors import TaskResult
-from clods_bench.benchmark.environment import git_commit, package_versions
-from clods_bench.benchmark.metrics import mean_std
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.descriptors import TaskResult
+from clods_bench.benchmark.running.environment import git_commit, package_versions
+from clods_bench.benchmark.scoring.metrics import mean_std
 from clods_bench.errors import ClodsError
 
 RESULT_FILE = "result.json"

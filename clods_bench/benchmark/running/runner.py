@@ -10,12 +10,12 @@ from typing import Any, Callable
 from rich.console import Console
 
 from clods_bench import numerics
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.config import RunConfig, save_config
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.determinism import seed_everything
-from clods_bench.benchmark.records import aggregate, record_dir, reusable_seed_result, save_seed_result
-from clods_bench.benchmark.registry import Registry
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.config import RunConfig, save_config
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.determinism import seed_everything
+from clods_bench.benchmark.running.records import aggregate, record_dir, reusable_seed_result, save_seed_result
+from clods_bench.benchmark.core.registry import Registry
 from clods_bench.datasets.digest import content_digest
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError

@@ -23,8 +23,8 @@ import torch
 from skimage.metrics import structural_similarity
 from torch import nn
 
-from clods_bench.benchmark import lpips_weights as lw
-from clods_bench.benchmark.lpips_weights import ALEXNET_FILE, CHANNELS, LpipsWeights  # noqa: F401  (re-exported)
+from clods_bench.benchmark.scoring import lpips_weights as lw
+from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE, CHANNELS, LpipsWeights  # noqa: F401  (re-exported)
 from clods_bench.errors import ClodsError
 
 LPIPS_SHIFT = (-0.030, -0.088, -0.188)

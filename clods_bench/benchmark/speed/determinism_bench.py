@@ -25,8 +25,8 @@ _CHILD = """
 import json, sys
 import clods_bench
 from rich.console import Console
-from clods_bench.benchmark.sim_bench import bench_sim
-from clods_bench.plugins.splatting.bench import bench_render
+from clods_bench.benchmark.speed.sim_bench import bench_sim
+from clods_bench.splatting.bench import bench_render
 sim = bench_sim(Console(quiet=True), sims=["mgn", "physics"], frames=int(sys.argv[1]))["mgn"]
 render = bench_render(repeats=int(sys.argv[2]), memory=False, reference=False)["cpu"]
 print("RESULT " + json.dumps({"sim train s/step": sim.train_s_per_step, "sim infer ms/step": sim.infer_ms_per_step,

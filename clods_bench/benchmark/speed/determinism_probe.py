@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from clods_bench.benchmark import stage_digests
+from clods_bench.benchmark.core import stage_digests
 
 FAMILIES = ("graph net", "video predictor", "renderer fit", "extraction")
 
@@ -55,8 +55,8 @@ def _images(views: int, size: int, phase: float) -> np.ndarray:
 
 
 def _build(kind: str, name: str, values: dict[str, Any], work: Path) -> Any:
-    from clods_bench.benchmark.descriptors import BuildContext
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.descriptors import BuildContext
+    from clods_bench.benchmark.core.registry import default_registry
 
     registry = default_registry()
     spec = registry.get(kind, name)
@@ -72,7 +72,7 @@ def _digest(value: Any) -> str:
 
 def graph_net(work: Path) -> str:
     """MGN, latent 16, 2 message-passing steps, 12 optimiser steps on the synthetic flag."""
-    from clods_bench.benchmark.interfaces import FitContext
+    from clods_bench.benchmark.core.interfaces import FitContext
 
     sim = _build("simulator", "mgn", {"latent_size": 16, "message_passing_steps": 2, "train_steps": 15, "warmup_steps": 3,
                                        "batch_size": 2, "learning_rate": 1e-3, "checkpoint_every": 1000}, work)  # fmt: skip
@@ -82,7 +82,7 @@ def graph_net(work: Path) -> str:
 
 def video_predictor(work: Path) -> str:
     """SimVP, 8/16 channels, 2 blocks, 6 optimiser steps on smooth synthetic videos of 24 px."""
-    from clods_bench.benchmark.interfaces import FitContext
+    from clods_bench.benchmark.core.interfaces import FitContext
 
     pred = _build("video_predictor", "simvp", {"context_frames": 3, "hid_s": 8, "hid_t": 16, "enc_layers": 2, "trans_layers": 2,
                                                 "groups": 2, "train_steps": 6, "batch_size": 2, "checkpoint_every": 1000}, work)  # fmt: skip
@@ -130,7 +130,7 @@ def probe(families: tuple[str, ...] = FAMILIES) -> dict[str, dict[str, Any]]:
     """{family: {'digest', 'seconds'}} of each family's tiny fit, every one seeded alike, in the exact scope unless
     host paths are asked for."""
     from clods_bench import numerics
-    from clods_bench.benchmark.determinism import seed_everything
+    from clods_bench.benchmark.core.determinism import seed_everything
 
     out = {}
     with numerics.maybe_exact():

@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from clods_bench.benchmark.descriptors import BuildContext
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
-from clods_bench.benchmark.sim_bench import WARMUP_OPTIONS, step_option
+from clods_bench.benchmark.core.descriptors import BuildContext
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.speed.sim_bench import WARMUP_OPTIONS, step_option
 from clods_bench.datasets.generate import make_cameras, make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import render_views
@@ -37,8 +37,8 @@ from clods_bench.errors import ClodsError
 from clods_bench.numerics.threads import thread_cap
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.config import RunConfig
-    from clods_bench.benchmark.registry import Registry
+    from clods_bench.benchmark.core.config import RunConfig
+    from clods_bench.benchmark.core.registry import Registry
 
 PIPELINES = ("clods", "traditional")
 PARTS = ("sim_step", "render")
@@ -128,7 +128,7 @@ def bench_infer(cfg: "RunConfig", registry: "Registry | None" = None, sim: str =
     if views is not None and not 1 <= views <= d.num_cameras:
         raise ClodsError(f"must be in 1..{d.num_cameras} (the preset's cameras), got {views}", where="bench infer --views")
     if registry is None:
-        from clods_bench.benchmark.registry import default_registry
+        from clods_bench.benchmark.core.registry import default_registry
 
         registry = default_registry()
     scene = registry.get("scene", d.scene)

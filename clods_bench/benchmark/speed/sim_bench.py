@@ -25,9 +25,9 @@ from typing import Any, Callable, Mapping, Sequence
 from rich.console import Console
 from rich.table import Table
 
-from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
+from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
 from clods_bench.numerics import cpu_model
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.scenes import Resolution, get_scene, simulate_scene
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -145,7 +145,7 @@ def bench_sim(
     Each learned simulator with a `device` option is also timed on every device of `devices` other than
     'cpu' (keys 'name@device'). Returns the timings by key; names not registered are skipped.
     """
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     reg = registry if registry is not None else default_registry()
     scene = get_scene("flag")

@@ -22,10 +22,10 @@ from rich.console import Console
 from rich.table import Table
 
 from clods_bench.numerics import cpu_model
-from clods_bench.benchmark.config import RunConfig
-from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
-from clods_bench.benchmark.interfaces import FitContext
-from clods_bench.benchmark.sim_bench import has_option, row_name, step_option
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
+from clods_bench.benchmark.core.interfaces import FitContext
+from clods_bench.benchmark.speed.sim_bench import has_option, row_name, step_option
 from clods_bench.datasets.scenes import get_scene
 
 NUM_VIDEOS = 2
@@ -94,7 +94,7 @@ def bench_video(
     the CPU (unless `cpu` is off: on a GPU machine those rows can take minutes) and each other device of `devices` it
     supports; print a table with each one's step time over `reference`'s on the same device and the preset's training
     time per row."""
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     reg = registry if registry is not None else default_registry()
     scene_name = config.data.scene  # a registry without scene plugins (tests) still knows the built-in ones

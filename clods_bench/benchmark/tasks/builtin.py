@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.descriptors import TaskSpec
-from clods_bench.benchmark.eval_data import extra_datasets
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.descriptors import TaskSpec
+from clods_bench.benchmark.core.eval_data import extra_datasets
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.benchmark.tasks.cdg import run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
 from clods_bench.benchmark.tasks.dvc_multi import run_dvc_multi

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.datasets.scenes import BUILTIN_SCENES, SceneSpec
 
 

@@ -21,7 +21,7 @@ from clods_bench.benchmark.clods.sheet_mesh import (
     with_handles,
 )
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
-from clods_bench.benchmark.cross_topology import attach, attached_rmse, chamfer, follow
+from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse, chamfer, follow
 from clods_bench.datasets.cameras import Camera, camera_rig, look_at
 from clods_bench.datasets.cloths import validate_cloth_mesh
 from clods_bench.datasets.meshes import make_flag_mesh

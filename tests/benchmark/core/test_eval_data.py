@@ -12,15 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.eval_data import cdg_config, scored_data
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.eval_data import cdg_config, scored_data
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.meshes import make_cylinder_mesh
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
-from tests.benchmark.test_cdg import _independent_constvel, _independent_constvel_rmse
+from tests.benchmark.tasks.test_cdg import _independent_constvel, _independent_constvel_rmse
 from tests.conftest import tiny_config
 
 CYLINDER = ["task_config.cdg.eval_data.scene=cylinder", "task_config.cdg.eval_data.resolution=[5,4]",

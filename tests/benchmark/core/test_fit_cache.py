@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.fit_cache import FIT_CACHE_DIR, fit_cost_seconds, fit_work_dir, sim_fit_identity
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.fit_cache import FIT_CACHE_DIR, fit_cost_seconds, fit_work_dir, sim_fit_identity
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import run_task
 from tests.conftest import tiny_config
 
 MGN = ["sim_config.mgn.latent_size=8", "sim_config.mgn.message_passing_steps=1", "sim_config.mgn.train_steps=6", "sim_config.mgn.warmup_steps=2"]

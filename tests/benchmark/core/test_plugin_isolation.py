@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from clods_bench.api_version import PluginAPIDeprecationWarning
-from clods_bench.benchmark.registry import STRICT_ENV, PluginLoadWarning, Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.core.registry import STRICT_ENV, PluginLoadWarning, Registry, default_registry, make_plugin_manager
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.errors import ClodsError
-from tests.benchmark.plugin_packages import install, install_all, module_name
+from tests.plugin_packages import install, install_all, module_name
 
 
 @pytest.fixture

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.registry import Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
 from clods_bench.errors import ClodsError
 
 

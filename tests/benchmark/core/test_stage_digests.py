@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.stage_digests import STAGES, collecting, fitted_state, record
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.stage_digests import STAGES, collecting, fitted_state, record
 
 
 def _digest(stage: str, *values: object) -> str:

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.report import HEADLINE, pareto_front, write_report
+from clods_bench.benchmark.outputs.report import HEADLINE, pareto_front, write_report
 from clods_bench.errors import ClodsError
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
-from clods_bench.benchmark.tables import fmt_cell, write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.tables import fmt_cell, write_tables
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
 

@@ -11,9 +11,9 @@ from typing import Any, Callable
 import pytest
 
 from clods_bench.benchmark.clods.config import clods_config
-from clods_bench.benchmark.config import RunConfig
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.reproduce import PlanRun, build_configs, load_plan, run_name
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.reproduction.reproduce import PlanRun, build_configs, load_plan, run_name
 
 PRESETS = ("ci", "small", "paper")
 # Names whose digits are not settings (checked against nothing): the method names 2DGS and 3DGS, CloDS's stage 0.

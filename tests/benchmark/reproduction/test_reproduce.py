@@ -13,12 +13,12 @@ import pandas as pd
 import pytest
 from rich.console import Console
 
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.executors import ensure_complete_dataset
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.reproduce import build_configs, default_plan_path, load_plan, reproduce
-from clods_bench.benchmark.runner import run_task
+from clods_bench.cli import main
+from clods_bench.benchmark.running.executors import ensure_complete_dataset
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.reproduction.reproduce import build_configs, default_plan_path, load_plan, reproduce
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
 from tests.conftest import TINY, tiny_config
 
@@ -57,7 +57,7 @@ def test_builtin_plan_loads_and_every_enabled_run_is_installed() -> None:
 
 def test_backbone_ablation_has_every_learned_backbone_and_reuses_table2_for_mgn() -> None:
     """Paper Fig. 6a: X* and CloDS (X) per backbone; MGN's two rows resolve to Table 2's MGN* and CloDS configs (run once)."""
-    from clods_bench.benchmark.reproduce import config_identity
+    from clods_bench.benchmark.reproduction.reproduce import config_identity
 
     runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
     rows = {(run.table, run.label): cfg for run, cfg in runs}
@@ -73,7 +73,7 @@ def test_backbone_ablation_has_every_learned_backbone_and_reuses_table2_for_mgn(
 
 def test_lighting_table_differs_from_table2_clods_only_in_the_scene() -> None:
     """Paper lighting table: 'w/o light' is Table 2's CloDS** run (run once), 'light' the same config on flag-lit."""
-    from clods_bench.benchmark.reproduce import config_identity
+    from clods_bench.benchmark.reproduction.reproduce import config_identity
 
     runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
     rows = {(run.table, run.label): cfg for run, cfg in runs}
@@ -199,7 +199,7 @@ def test_same_learned_config_twice_gives_identical_metrics(tmp_path: Path, tiny_
 
 
 def test_tasks_without_a_layout_get_one_column_per_metric() -> None:
-    from clods_bench.benchmark.reproduce import table_frames
+    from clods_bench.benchmark.reproduction.reproduce import table_frames
 
     recs = [
         {"label": "copy", "seeds": [0, 1], "metrics": {"psnr": {"mean": 20.0, "std": 0.5}}, "timings": {"fit_seconds": {"mean": 2.0, "std": 0.0}, "fit/loss": {"mean": 1.0}}},
@@ -254,8 +254,8 @@ def test_a_label_may_repeat_across_scenes_and_each_scene_gets_its_row(tmp_path: 
 def test_shape_generalisation_rows_share_table2_and_score_the_cylinder_trained_rows_data() -> None:
     """A -> B rows: flag -> flag is Table 2's run; flag -> cylinder trains as Table 2 does (same data and simulator
     options, so the same cached fit) and scores the very dataset the cylinder -> cylinder row trains and scores on."""
-    from clods_bench.benchmark.eval_data import scored_data
-    from clods_bench.benchmark.reproduce import config_identity
+    from clods_bench.benchmark.core.eval_data import scored_data
+    from clods_bench.benchmark.reproduction.reproduce import config_identity
 
     reg = default_registry()
     rows = {(run.table, run.label): cfg for run, cfg in build_configs(load_plan(default_plan_path()), "ci", reg)}
@@ -300,7 +300,7 @@ BUDGET_PLAN = textwrap.dedent(
 
 def _deadline_after(monkeypatch: pytest.MonkeyPatch, jobs_allowed: int) -> None:
     """Make the executor's deadline pass once `jobs_allowed` jobs have started (the serial executor asks before each)."""
-    import clods_bench.benchmark.executors as executors
+    import clods_bench.benchmark.running.executors as executors
 
     asked = []
 

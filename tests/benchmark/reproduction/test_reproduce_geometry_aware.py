@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from clods_bench.benchmark.clods.config import clods_config
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.reproduce import build_configs, config_identity, default_plan_path, load_plan
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.reproduction.reproduce import build_configs, config_identity, default_plan_path, load_plan
 
 
 def test_geometry_aware_rows_resolve_to_the_intended_configs() -> None:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark import run_digests
-from clods_bench.benchmark.compare import ToleranceRule, ToleranceSpec
+from clods_bench.benchmark.reproduction import run_digests
+from clods_bench.benchmark.reproduction.compare import ToleranceRule, ToleranceSpec
 from clods_bench.errors import ClodsError
 
 NUMERICS = {"mode": "deterministic", "pins_version": 1, "threads": 1}

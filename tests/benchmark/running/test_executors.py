@@ -9,13 +9,13 @@ import pandas as pd
 import pytest
 from rich.console import Console
 
-from clods_bench.benchmark.executors import LocalExecutor, make_executor
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.reproduce import reproduce
+from clods_bench.benchmark.running.executors import LocalExecutor, make_executor
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.reproduction.reproduce import reproduce
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.threads import MAX_THREADS_ENV, torch_threads
-from tests.benchmark.test_reproduce import _overrides, _plan
+from tests.benchmark.reproduction.test_reproduce import _overrides, _plan
 
 TIMING = ("infer_ms_per_step", "fit_seconds")
 
@@ -111,7 +111,7 @@ def test_a_complete_dataset_of_an_edited_scene_is_not_reused(tiny_root: Path) ->
     same name gets the store's 'different config' error instead of the old trajectories (and nothing is deleted)."""
     import dataclasses
 
-    from clods_bench.benchmark.executors import ensure_complete_dataset
+    from clods_bench.benchmark.running.executors import ensure_complete_dataset
     from tests.conftest import tiny_config
 
     cfg = tiny_config(tiny_root)
@@ -140,7 +140,7 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
     """On a cluster that declares a GPU, jobs with a CUDA renderer or a gsplat surfel fit get it (a share each), the
     others none; the share comes from $CLODS_BENCH_RAY_GPU_SHARE, which must lie in (0, 1]."""
     ray = pytest.importorskip("ray")
-    from clods_bench.benchmark.executors import GPU_SHARE_ENV, RayExecutor, SeedJob, job_uses_gpu
+    from clods_bench.benchmark.running.executors import GPU_SHARE_ENV, RayExecutor, SeedJob, job_uses_gpu
 
     jobs = [
         SeedJob({"renderer": "smgs", "renderer_config": {"smgs": {"device": "cuda", "backend": "gsplat"}}}, 0, "smgs on cuda"),
@@ -171,7 +171,7 @@ def test_ray_gives_a_gpu_share_only_to_jobs_that_use_cuda(monkeypatch: pytest.Mo
 _SLEEPER = """
 import os, sys, time
 from pathlib import Path
-from clods_bench.benchmark.executors import LocalExecutor
+from clods_bench.benchmark.running.executors import LocalExecutor
 
 def job(folder):
     (Path(folder) / f"{os.getpid()}.pid").write_text("")

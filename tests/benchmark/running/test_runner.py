@@ -6,11 +6,11 @@ from pathlib import Path
 
 import yaml
 
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.executors import ensure_complete_dataset
-from clods_bench.benchmark.records import record_dir
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import resolve_plugin_configs, run_task
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.running.executors import ensure_complete_dataset
+from clods_bench.benchmark.running.records import record_dir
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import resolve_plugin_configs, run_task
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig
 from tests.conftest import tiny_config
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.cross_topology import attach, attached_rmse, chamfer, chamfer_per_frame, follow
+from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse, chamfer, chamfer_per_frame, follow
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.errors import ClodsError
 

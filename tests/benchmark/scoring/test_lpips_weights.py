@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from clods_bench.benchmark import image_metrics as im
-from clods_bench.benchmark import lpips_weights as lw
+from clods_bench.benchmark.scoring import image_metrics as im
+from clods_bench.benchmark.scoring import lpips_weights as lw
 from clods_bench.errors import ClodsError
-from tests.benchmark.test_image_metrics import torchvision_alexnet_features, write_alexnet
+from tests.benchmark.scoring.test_image_metrics import torchvision_alexnet_features, write_alexnet
 
 DATA = Path(__file__).parent / "data" / "lpips"
 JAX_CKPT = lw.default_jax_ckpt_path()

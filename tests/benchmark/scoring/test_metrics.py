@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
+from clods_bench.benchmark.scoring.metrics import cdg_columns, divergence_step, rmse_per_step
 
 
 def test_rmse_per_step_known_values() -> None:

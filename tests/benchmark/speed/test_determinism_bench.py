@@ -8,7 +8,7 @@ import pytest
 from rich.console import Console
 
 from clods_bench import numerics as dm
-from clods_bench.benchmark import determinism_bench
+from clods_bench.benchmark.speed import determinism_bench
 
 
 def test_modes_alternate_and_the_best_of_each_is_compared(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -13,16 +13,16 @@ import pytest
 import torch
 from rich.console import Console
 
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.infer_bench import bench_infer, check_device
-from clods_bench.benchmark.infer_output import load_infer_results, print_bench_infer, result_rows, write_infer_outputs
-from clods_bench.benchmark.registry import Registry, make_plugin_manager
+from clods_bench.cli import main
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.speed.infer_bench import bench_infer, check_device
+from clods_bench.benchmark.outputs.infer_output import load_infer_results, print_bench_infer, result_rows, write_infer_outputs
+from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.errors import ClodsError
-from tests.benchmark.fake_clock import FakeClock
+from tests.benchmark.speed.fake_clock import FakeClock
 
 TINY = ["data.resolution=[5,3]", "data.num_cameras=3", "data.num_views_test=1", "data.image_size=16", "sim_config.mgn.latent_size=8",
         "sim_config.mgn.message_passing_steps=1", "sim_config.mgn.num_threads=1", "renderer_config.smgs.gaussians_per_face=2"]  # fmt: skip
@@ -168,7 +168,7 @@ def _synthetic(preset: str, sim_ms: float, render_ms: float) -> dict:
 
 
 def test_outputs_accumulate_presets_and_the_report_shows_them(tmp_path: Path) -> None:
-    from clods_bench.benchmark.html_report import build_html_report
+    from clods_bench.benchmark.outputs.html_report import build_html_report
 
     bench = tmp_path / "bench"
     write_infer_outputs(_synthetic("small", 1.0, 2.0), bench)
@@ -190,8 +190,8 @@ def test_outputs_accumulate_presets_and_the_report_shows_them(tmp_path: Path) ->
 def test_on_a_gpu_the_learned_step_is_timed_there_too() -> None:
     """`--device cuda` puts the learned simulator on that device (MGN has a device option), one step and no warm-up
     as on the CPU; on the CPU its config keeps the preset's device."""
-    from clods_bench.benchmark.infer_bench import learned_values
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.speed.infer_bench import learned_values
+    from clods_bench.benchmark.core.registry import default_registry
 
     cfg = load_config("ci", None, [])
     spec = default_registry().get("simulator", "mgn")

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.sim_bench import bench_sim
-from tests.benchmark.fake_clock import FakeClock
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.speed.sim_bench import bench_sim
+from tests.benchmark.speed.fake_clock import FakeClock
 
 
 CLOCK = FakeClock()
@@ -155,7 +155,7 @@ def test_bench_sim_times_learned_simulators_on_each_device_with_the_cpu_speed_up
 
 
 def test_sim_overrides_group_options_by_simulator_and_refuse_other_keys() -> None:
-    from clods_bench.benchmark.sim_bench import sim_overrides
+    from clods_bench.benchmark.speed.sim_bench import sim_overrides
     from clods_bench.errors import ClodsError
 
     got = sim_overrides([("sim_config.mgn.loss", "rollout"), ("sim_config.mgn.rollout_length", 8), ("sim_config.bsms.device", "cuda")])

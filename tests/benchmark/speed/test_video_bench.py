@@ -9,12 +9,12 @@ from dataclasses import dataclass
 import numpy as np
 from rich.console import Console
 
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.video_bench import bench_video, synthetic_videos
-from tests.benchmark.fake_clock import FakeClock
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.speed.video_bench import bench_video, synthetic_videos
+from tests.benchmark.speed.fake_clock import FakeClock
 
 
 CLOCK = FakeClock()

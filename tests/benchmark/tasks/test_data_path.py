@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.records import RECORD_FILE, record_dir
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.running.records import RECORD_FILE, record_dir
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.generate import ensure_dataset, generate
 from clods_bench.datasets.nerf import export_nerf
 from clods_bench.datasets.store import DatasetStore
@@ -177,8 +177,8 @@ def test_dvc_from_video_alone_equals_the_meshed_run_and_its_images(imported, tin
     import torch
 
     from clods_bench.benchmark.clods.reconstructed import detect_handles
-    from clods_bench.benchmark.image_metrics import psnr
-    from clods_bench.benchmark.mesh_pictures import load_mesh_sample
+    from clods_bench.benchmark.scoring.image_metrics import psnr
+    from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 
     fields = {"task": "dvc", "sim": "frozen", "renderer": "games"}
     extra = [*VIDEO_ONLY, "task_config.dvc.lpips=false", "task_config.dvc.sim_training=video"]
@@ -238,7 +238,7 @@ def test_extract_from_video_alone_is_scored_in_images(imported, tiny_root: Path,
     held-out camera's frames (recomputed here from the caches) and the training cameras'; E-GT where meshes exist."""
     import torch
 
-    from clods_bench.benchmark.image_metrics import psnr
+    from clods_bench.benchmark.scoring.image_metrics import psnr
 
     extra = [*VIDEO_ONLY, "task_config.extract.lpips=false"]
     meshed = _metrics(tiny_config(tiny_root, *extra, f"runs_dir={tmp_path / 'a'}", task="extract", renderer="games"))
@@ -256,11 +256,11 @@ def test_extract_from_video_alone_is_scored_in_images(imported, tiny_root: Path,
                 held.append(psnr(renderer.render(torch.from_numpy(frames[t].astype(np.float32)), [store.cameras()[2]]).numpy()[0], video[t]))
     assert alone["psnr"] == pytest.approx(np.mean(held), rel=1e-5)
     assert alone["train/psnr"] > alone["psnr"]  # stage 2 fitted the training cameras
-    from clods_bench.benchmark.tables import write_tables
+    from clods_bench.benchmark.outputs.tables import write_tables
 
     md = next(p for p in write_tables(tmp_path / "b", tmp_path / "tables", task="extract") if p.suffix == ".md").read_text()
     assert "held-out PSNR (dB)" in md and f"{alone['psnr']:.4f}" in md and "E-GT" not in md
-    from clods_bench.benchmark.html_report import build_html_report
+    from clods_bench.benchmark.outputs.html_report import build_html_report
 
     written = build_html_report(tmp_path / "b", tmp_path / "report")
     html = (tmp_path / "report" / "index.html").read_text()

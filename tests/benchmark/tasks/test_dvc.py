@@ -11,20 +11,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.image_metrics import psnr, ssim
-from clods_bench.benchmark.mesh_pictures import load_mesh_sample
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import Registry, default_registry, make_plugin_manager
-from clods_bench.benchmark.runner import run_task
-from clods_bench.benchmark.tables import dvc_frame, write_tables
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
+from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.tables import dvc_frame, write_tables
 from clods_bench.benchmark.tasks.dvc import GRID_FILE
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
-from tests.benchmark.test_nvs import Doubles, RasterDouble, _gt_render_args
+from tests.benchmark.tasks.test_nvs import Doubles, RasterDouble, _gt_render_args
 from tests.conftest import tiny_config
 
 # tiny: trajectories 0,1 are training ones (scored), frames 0..8 observed, 9..11 predicted; camera 2 held out

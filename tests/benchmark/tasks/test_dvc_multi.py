@@ -13,12 +13,12 @@ import pytest
 import torch
 from torch import nn
 
-from clods_bench.benchmark.image_metrics import psnr, ssim
-from clods_bench.benchmark.interfaces import FitContext
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import Registry, default_registry, make_plugin_manager
-from clods_bench.benchmark.runner import run_task
-from clods_bench.benchmark.tables import dvc_multi_frame, write_tables
+from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
+from clods_bench.benchmark.core.interfaces import FitContext
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.tables import dvc_multi_frame, write_tables
 from clods_bench.benchmark.tasks.dvc_multi import DvcMultiConfig, MultiSplit, multi_split, training_videos
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.splits import SplitSpec
@@ -26,7 +26,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.video.trainer import WindowPredictor, WindowTrainConfig
-from tests.benchmark.test_nvs import Doubles, RasterDouble, _gt_render_args
+from tests.benchmark.tasks.test_nvs import Doubles, RasterDouble, _gt_render_args
 from tests.conftest import tiny_config
 
 # tiny: training trajectories 0, 1 (frames 0..8 observed, 9..11 Extrapolation), test trajectory 2; camera 2 held out.

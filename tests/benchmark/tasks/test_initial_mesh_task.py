@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.builders import data_splits
-from clods_bench.benchmark.mesh_pictures import load_mesh_sample
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.builders import data_splits
+from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
 
@@ -44,7 +44,7 @@ def test_the_pipeline_reuses_the_tables_stage0_meshes(tiny_root: Path, tmp_path:
 
     from clods_bench.benchmark.clods.config import clods_config
     from clods_bench.benchmark.clods.reconstructed import stage0_config, stage0_mesh
-    from clods_bench.benchmark.descriptors import TaskContext
+    from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.datasets.store import DatasetStore
 
     cfg = tiny_config(tiny_root, *FAST, f"runs_dir={tmp_path / 'runs'}", task="initial_mesh")

@@ -12,19 +12,19 @@ import pandas as pd
 import pytest
 import torch
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.runner import run_task
-from clods_bench.benchmark.tables import write_tables
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
 from clods_bench.datasets.generate import make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
-from clods_bench.benchmark.lpips_weights import ALEXNET_FILE
-from tests.benchmark.test_image_metrics import needs_lpips, write_alexnet
+from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE
+from tests.benchmark.scoring.test_image_metrics import needs_lpips, write_alexnet
 from tests.conftest import tiny_config
 
 CALLS: dict[str, list[dict[str, Any]]] = {"fit": [], "render": []}
@@ -167,7 +167,7 @@ def test_perfect_renderer_scores_its_quantisation_error(tiny_root: Path, tmp_pat
 
 def _gt_render_args(cfg) -> tuple:
     """uv, texture and settings exactly as the dataset generator used them."""
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     scene = default_registry().get("scene", cfg.data.scene)
     mesh = scene.build_mesh(resolution_of(cfg.data))
@@ -211,8 +211,8 @@ def test_per_frame_renderer_is_fitted_on_every_frame(tiny_root: Path, tmp_path: 
 @needs_lpips
 def test_lpips_in_the_task_with_local_weights(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """On 32 px images LPIPS is computed; the constant renderer's value equals the metric applied by hand."""
-    from clods_bench.benchmark.image_metrics import load_lpips
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.scoring.image_metrics import load_lpips
+    from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.datasets.generate import generate
 
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "th"))

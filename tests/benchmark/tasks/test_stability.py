@@ -10,14 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.interfaces import RolloutInput
-from clods_bench.benchmark.monitors import MeshMonitor, first_failure, lumped_mass
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.runner import run_task
-from clods_bench.benchmark.tables import write_tables
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.core.interfaces import RolloutInput
+from clods_bench.benchmark.scoring.monitors import MeshMonitor, first_failure, lumped_mass
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import get_scene, simulate_scene
 from clods_bench.datasets.store import DatasetStore
@@ -181,8 +181,8 @@ def test_training_curve_scores_every_snapshot_and_ends_at_the_final_model(tiny_r
     # a snapshot's point is the model of that step: scored again by hand with the step-10 weights
     work = next(p for p in (runs / "fit_cache").glob("mgn-*") if (p / "snapshots").is_dir())
     cfg = tiny_config(tiny_root, f"runs_dir={runs}", *MGN_TINY, sim="mgn", task="stability")
-    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes
-    from clods_bench.benchmark.descriptors import TaskContext
+    from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes
+    from clods_bench.benchmark.core.descriptors import TaskContext
 
     ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path / "w", registry=registry)
     store = DatasetStore.open(cfg.data.dataset_dir())
@@ -213,7 +213,7 @@ def test_training_curve_needs_a_learned_simulator(tiny_root: Path, tmp_path: Pat
 def test_hop_distance_against_a_brute_force_shortest_path() -> None:
     from itertools import product
 
-    from clods_bench.benchmark.monitors import hop_distance
+    from clods_bench.benchmark.scoring.monitors import hop_distance
 
     mesh = make_flag_mesh(5, 4, 2.0, 1.0)
     mon = MeshMonitor.from_rest(mesh.cells, mesh.rest_pos, 1.0, 0.01)
@@ -235,7 +235,7 @@ def test_a_strain_failure_names_how_far_the_tear_is_from_a_handle(tiny_root: Pat
     edge's hop distance from the handles, which a hand count on the grid gives."""
     import dataclasses
 
-    from clods_bench.benchmark.monitors import cloth_monitor, hop_distance
+    from clods_bench.benchmark.scoring.monitors import cloth_monitor, hop_distance
     from clods_bench.benchmark.tasks.stability import StabilityConfig, watch
     from clods_bench.datasets.types import HANDLE
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Sequence
 
-from clods_bench.benchmark.hookspecs import hookspec
+from clods_bench.benchmark.core.hookspecs import hookspec
 
 if TYPE_CHECKING:
     from clods_bench.datasets.scenes import SceneSpec

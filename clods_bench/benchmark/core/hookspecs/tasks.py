@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Sequence
 
-from clods_bench.benchmark.hookspecs import hookspec
+from clods_bench.benchmark.core.hookspecs import hookspec
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.descriptors import TaskSpec
+    from clods_bench.benchmark.core.descriptors import TaskSpec
 
 
 @hookspec

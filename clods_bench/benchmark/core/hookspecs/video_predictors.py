@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Sequence
 
-from clods_bench.benchmark.hookspecs import hookspec
+from clods_bench.benchmark.core.hookspecs import hookspec
 
 if TYPE_CHECKING:
-    from clods_bench.benchmark.descriptors import PluginSpec
+    from clods_bench.benchmark.core.descriptors import PluginSpec
 
 
 @hookspec
@@ -15,6 +15,6 @@ def clods_bench_video_predictors() -> Sequence["PluginSpec"]:
     """Return the video predictors this plugin provides.
 
     Each `PluginSpec.build(config, context)` must return an object satisfying
-    `clods_bench.benchmark.interfaces.VideoPredictor`. All implementations are called
+    `clods_bench.benchmark.core.interfaces.VideoPredictor`. All implementations are called
     and their lists concatenated; a name provided twice is an error.
     """

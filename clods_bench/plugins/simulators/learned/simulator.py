@@ -24,7 +24,7 @@ import torch
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.devices import torch_device
 from clods_bench.errors import ClodsError
