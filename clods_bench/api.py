@@ -16,7 +16,8 @@ The hooks a plugin implements (one list of descriptors each, all implementations
 from __future__ import annotations
 
 from clods_bench.api_version import API_VERSION, DECLARATION, PluginAPIDeprecationWarning
-from clods_bench.benchmark.core.config import DataConfig, RunConfig
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.benchmark.core.descriptors import BuildContext, EmptyConfig, PluginSpec, TaskContext, TaskResult, TaskSpec
 from clods_bench.benchmark.core.hookspecs import ENTRY_POINT_GROUP, hookimpl
 from clods_bench.benchmark.core.interfaces import (

@@ -2,7 +2,7 @@
 and the hook specifications. A test compares it with the committed snapshot of `API_VERSION`, so that no change of
 the API goes out without a new version, its snapshot and a changelog entry.
 
-`python -m clods_bench.docsgen.api_surface OUT.json` writes the snapshot of the installed release.
+`python -m tests.api_surface OUT.json` (from the repository root) writes the snapshot of the installed release.
 """
 
 from __future__ import annotations

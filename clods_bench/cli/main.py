@@ -402,7 +402,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.running.runner import run_task
 
     cfg = _config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
-    from clods_bench.benchmark.running.executors import default_jobs, make_executor, run_configs
+    from clods_bench.benchmark.running.executors import default_jobs, make_executor
+    from clods_bench.benchmark.running.seed_jobs import run_configs
 
     jobs = args.jobs or min(default_jobs(), max(1, len(cfg.seeds)))
     if args.executor == "local" and jobs == 1:
@@ -567,7 +568,7 @@ def _report_config_changes(committed: Path, runs: Sequence[tuple[Any, RunConfig]
 def _record_dirs(runs: Sequence[tuple[Any, RunConfig]], registry: Any) -> list[Path]:
     """Each run's record folder as `reproduce` resolves it: a row whose config differs from an earlier row's only in
     its label reads that row's record; plugin defaults filled, paths absolute."""
-    from clods_bench.benchmark.running.executors import absolute_paths
+    from clods_bench.benchmark.running.seed_jobs import absolute_paths
     from clods_bench.benchmark.running.records import record_dir
     from clods_bench.benchmark.reproduction.reproduce import canonical_rows, run_name
     from clods_bench.benchmark.running.runner import resolve_plugin_configs

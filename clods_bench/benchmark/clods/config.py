@@ -7,7 +7,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from clods_bench.benchmark.core.config import RunConfig, dataclass_from_dict
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.errors import ClodsError
 
 Variant = Literal["scratch", "finetune"]

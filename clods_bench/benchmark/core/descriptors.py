@@ -43,7 +43,7 @@ class PluginSpec:
 
     def make_config(self, values: Mapping[str, Any], where: str) -> Any:
         """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys."""
-        from clods_bench.benchmark.core.config import dataclass_from_dict
+        from clods_bench.typed_config import dataclass_from_dict
 
         return dataclass_from_dict(self.config_cls, dict(values), where)
 

@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from clods_bench.benchmark.core.config import DataConfig, RunConfig, data_with_overrides, dataclass_from_dict
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.datasets.data_config import DataConfig, data_with_overrides
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.errors import ClodsError
 
 WHERE = "task_config.cdg"

@@ -18,7 +18,8 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from clods_bench.benchmark.core.config import dataclass_from_dict, read_yaml
+from clods_bench.benchmark.core.config import read_yaml
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
 

@@ -25,7 +25,8 @@ from rich.console import Console
 from clods_bench import numerics
 from clods_bench.atomic import write_json, write_text
 from clods_bench.benchmark.reproduction import run_digests
-from clods_bench.benchmark.core.config import RunConfig, dataclass_from_dict, load_config, read_yaml
+from clods_bench.benchmark.core.config import RunConfig, load_config, read_yaml
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.running.environment import git_commit, package_versions
 from clods_bench.benchmark.running.records import RECORD_FILE, restrict
 from clods_bench.errors import ClodsError
@@ -303,7 +304,8 @@ def reproduce(
     finish is not written but listed under the manifest's `unfinished` (table id -> row labels), and a later call
     resumes it.
     """
-    from clods_bench.benchmark.running.executors import make_executor, run_configs
+    from clods_bench.benchmark.running.executors import make_executor
+    from clods_bench.benchmark.running.seed_jobs import run_configs
 
     t_start = time.perf_counter()
     if budget_seconds is not None and not budget_seconds > 0:

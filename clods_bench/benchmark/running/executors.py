@@ -1,15 +1,13 @@
-"""Where independent (run, seed) jobs execute: in this process (default) or as Ray tasks.
+"""Where independent jobs execute: in this process, in local worker processes (`--jobs N`) or as Ray tasks.
 
-A job is a resolved `RunConfig` (as a plain dict, so it pickles the same everywhere) and one
-seed. `run_seed_job` runs it through the ordinary runner, which writes `seed_<k>/result.json`
-into the run's record directory; afterwards the driver aggregates every run locally (all seeds
-are then resumed from disk), so both executors produce the same records and the same numbers.
-Paths in the configs are made absolute before dispatch: Ray workers may start in another directory.
+A job is any picklable item and a function applied to it (`map(fn, items, ...)`): a (run, seed) job (`SeedJob`, a
+resolved `RunConfig` as a plain dict, so it pickles the same everywhere, and one seed; see `seed_jobs`) or one
+trajectory of a dataset being generated. Every worker runs inside the exact scope unless host paths are asked for,
+so the numbers do not depend on the executor or the number of workers.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import multiprocessing
 import os
 import signal
@@ -18,15 +16,11 @@ import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable, Literal, Sequence
 
-from rich.console import Console
 from rich.progress import Progress
 
 from clods_bench import numerics
-from clods_bench.benchmark.core.config import RunConfig, dataclass_from_dict
-from clods_bench.benchmark.running.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.threads import MAX_THREADS_ENV
 
@@ -41,53 +35,6 @@ class SeedJob:
     config: dict[str, Any]
     seed: int
     name: str
-
-
-def ensure_complete_dataset(cfg: RunConfig, registry: Any, progress: bool = True, executor: Any = None) -> Any:
-    """The run's dataset: opened as is when every trajectory is complete (the dataset dir is a hash of its settings), else
-    generated (its trajectories in parallel through `executor`, if given)."""
-    from clods_bench.datasets.generate import ensure_dataset
-    from clods_bench.datasets.store import DatasetStore
-
-    root = cfg.data.dataset_dir()
-    if root.is_dir():
-        try:
-            store = DatasetStore.open(root)
-        except ClodsError:
-            store = None
-        if (
-            store is not None
-            and set(range(cfg.data.num_train + cfg.data.num_test)) <= store.completed_indices()
-            and _same_scene(store, cfg, registry)
-        ):
-            return store
-    return ensure_dataset(cfg, registry, progress, executor=executor)
-
-
-def _same_scene(store: Any, cfg: RunConfig, registry: Any) -> bool:
-    """Whether a generated dataset was made from the scene definition the registry holds now (an edited scene, e.g.
-    a changed obstacle or solver parameter, must not reuse it: `generate` then reports the difference)."""
-    made_with = store.config.get("scene_spec") if isinstance(store.config, dict) else None
-    if made_with is None or cfg.data.path:
-        return True  # imported data, or a store from before scene fingerprints
-    from clods_bench.datasets.generate import scene_fingerprint
-
-    try:
-        return made_with == scene_fingerprint(registry.get("scene", cfg.data.scene))
-    except ClodsError:
-        return True  # an unknown scene is reported by the run itself
-
-
-def run_seed_job(job: SeedJob) -> dict[str, Any]:
-    """Run one seed of one run (in whatever process executes it); return {'name', 'seed', 'record_dir', 'wall_seconds'}."""
-    from clods_bench.benchmark.core.registry import default_registry
-    from clods_bench.benchmark.running.runner import run_task
-
-    cfg = dataclass_from_dict(RunConfig, dict(job.config), where=f"job {job.name}")
-    cfg.seeds = [int(job.seed)]
-    t0 = time.perf_counter()
-    rdir = run_task(cfg, default_registry(), Console(stderr=True, quiet=True), ensure_data=ensure_complete_dataset)
-    return {"name": job.name, "seed": int(job.seed), "record_dir": str(rdir), "wall_seconds": time.perf_counter() - t0}
 
 
 @dataclass(frozen=True)
@@ -388,85 +335,3 @@ def make_executor(name: str, address: str | None = None, jobs: int = 1) -> Local
     if name == "ray":
         return RayExecutor(address=address)
     raise ClodsError(f"unknown executor '{name}'", where="--executor", hint=f"one of {', '.join(EXECUTORS)}")
-
-
-def absolute_paths(cfg: RunConfig) -> RunConfig:
-    """The same config with `runs_dir` and `data.root` made absolute (so a worker anywhere writes to the same place)."""
-    cfg.runs_dir = str(Path(cfg.runs_dir).resolve())
-    cfg.data.root = str(Path(cfg.data.root).resolve())
-    return cfg
-
-
-def run_configs(
-    configs: Sequence[tuple[str, RunConfig]],
-    executor: LocalExecutor | RayExecutor,
-    registry: Any,
-    console: Console,
-    deadline: float | None = None,
-) -> list[dict[str, Any]]:
-    """Run every (name, config) over its seeds through `executor`; aggregate each run here; return one summary per run.
-
-    Datasets are generated first, once per distinct data config, their trajectories in parallel through `executor`.
-    Seeds finished earlier are skipped. Summary: name, record_dir, wall_seconds (this call's jobs), seeds_run,
-    complete (every seed recorded). `deadline` (`time.monotonic()`, local executor only): no job starts after it; a
-    run left with a seed unrecorded is not aggregated (complete False) and resumes on the next call.
-    """
-    if deadline is not None and executor.name != "local":  # before any dataset is generated
-        raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
-    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs, run_data_digests, run_task, task_datasets
-
-    for name, cfg in configs:
-        check_plugins(cfg, registry)
-    configs = [(name, resolve_plugin_configs(absolute_paths(cfg), registry)) for name, cfg in configs]
-    parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
-    seen: set[Path] = set()
-    for name, cfg in configs:
-        for d in [cfg.data, *task_datasets(cfg, registry)]:  # the training data and any other the task scores on
-            ddir = d.dataset_dir()
-            if ddir not in seen:
-                seen.add(ddir)
-                console.print(f"[dim]dataset {ddir}[/dim]")
-                ensure_complete_dataset(dataclasses.replace(cfg, data=d), registry, cfg.progress, executor=executor if parallel else None)
-
-    digests: dict[str, list[str]] = {}  # per run, read only for runs with a finished seed
-
-    def reusable(name: str, cfg: RunConfig, seed: int) -> bool:
-        """Whether the seed has a result to reuse (one made from other data or under other pins is an error, here
-        before any job starts)."""
-        rdir = record_dir(cfg)
-        if load_seed_result(rdir, seed) is None:
-            return False
-        if name not in digests:
-            digests[name] = run_data_digests(cfg, registry)
-        return reusable_seed_result(rdir, seed, digests[name]) is not None
-
-    # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
-    # runs together instead of two seeds of one run that would wait on each other's shared cached stages.
-    jobs = []
-    depth = max((len(cfg.seeds) for _, cfg in configs), default=0)
-    for k in range(depth):
-        for name, cfg in configs:
-            if k >= len(cfg.seeds):
-                continue
-            seed = cfg.seeds[k]
-            if not reusable(name, cfg, seed):
-                worker_cfg = cfg.to_dict()
-                worker_cfg["progress"] = False if parallel else cfg.progress
-                jobs.append(SeedJob(config=worker_cfg, seed=int(seed), name=name))
-    console.print(f"{len(jobs)} seed job(s) to run on the {executor.name} executor ({sum(len(c.seeds) for _, c in configs) - len(jobs)} finished earlier)")
-    results = executor.map(run_seed_job, jobs, describe=lambda j: f"{j.name} seed {j.seed}", progress=any(c.progress for _, c in configs),
-                           deadline=deadline)  # fmt: skip
-
-    summaries = []
-    for name, cfg in configs:
-        mine = [r for r in results if r is not None and r["name"] == name]
-        rdir = record_dir(cfg)
-        summary = {"name": name, "record_dir": str(rdir), "wall_seconds": sum(r["wall_seconds"] for r in mine),
-                   "seeds_run": sorted(r["seed"] for r in mine), "complete": True}  # fmt: skip
-        if any(load_seed_result(rdir, seed) is None for seed in cfg.seeds):
-            summary["complete"] = False  # left out by the deadline: aggregating would run its seeds here
-        else:
-            rdir = run_task(cfg, registry, Console(stderr=True, quiet=True), ensure_data=ensure_complete_dataset)  # every seed is on disk now: this only aggregates
-            summary["record_dir"] = str(rdir)
-        summaries.append(summary)
-    return summaries

@@ -121,7 +121,7 @@ def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data:
 
     run_timings: dict[str, float] = {}
     if ensure_data is None:
-        from clods_bench.datasets.generate import ensure_dataset as ensure_data
+        from clods_bench.benchmark.running.run_data import ensure_dataset as ensure_data
     t0 = time.perf_counter()
     ensure_data(cfg, registry, cfg.progress)
     for d in task_datasets(cfg, registry):

@@ -50,7 +50,7 @@ def bench_stage2(preset: str = "ci", renderer_name: str = "smgs", frames: int = 
     from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.benchmark.core.builders import split_spec
     from clods_bench.benchmark.core.builders import build_renderer
-    from clods_bench.datasets.generate import ensure_dataset
+    from clods_bench.benchmark.running.run_data import ensure_dataset
 
     overrides = [f"renderer_config.{renderer_name}.iterations={fit_iterations}"] + ([f"data.root={data_root}"] if data_root else [])
     cfg = load_config(preset, overrides=overrides, renderer=renderer_name)

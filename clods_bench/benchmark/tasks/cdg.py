@@ -8,7 +8,7 @@ import numpy as np
 from rich.progress import Progress
 
 from clods_bench.benchmark.core.builders import build_simulator, data_splits, fit_on_meshes
-from clods_bench.benchmark.core.config import DataConfig
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.eval_data import WHERE, scored_data
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds

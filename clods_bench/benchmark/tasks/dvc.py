@@ -27,7 +27,7 @@ import torch
 from rich.progress import Progress
 
 from clods_bench.benchmark.core.builders import as_images, split_spec
-from clods_bench.benchmark.core.config import dataclass_from_dict
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.core.interfaces import RolloutInput, check_prediction, check_rollout

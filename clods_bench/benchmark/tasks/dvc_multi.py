@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import torch
 
-from clods_bench.benchmark.core.config import dataclass_from_dict
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout

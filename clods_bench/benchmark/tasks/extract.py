@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench.benchmark.core.config import dataclass_from_dict
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.errors import ClodsError

@@ -35,7 +35,7 @@ from rich.progress import Progress
 
 from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.core import stage_digests
-from clods_bench.benchmark.core.config import dataclass_from_dict
+from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.core.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from clods_bench.benchmark.core.config import DataConfig, RunConfig, load_config, parse_override, preset_names, save_config, read_yaml
+from clods_bench.benchmark.core.config import RunConfig, load_config, parse_override, preset_names, read_yaml, save_config
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.errors import ClodsError
 
 
@@ -63,7 +64,7 @@ def test_user_file_and_malformed_yaml(tmp_path) -> None:
 def test_resolved_config_round_trips(tmp_path) -> None:
     cfg = load_config("ci", overrides=["data.num_train=6"], sim="constvel")
     save_config(cfg, tmp_path / "c.yaml")
-    from clods_bench.benchmark.core.config import dataclass_from_dict
+    from clods_bench.typed_config import dataclass_from_dict
 
     again = dataclass_from_dict(RunConfig, read_yaml(tmp_path / "c.yaml"), "saved")
     assert again == cfg

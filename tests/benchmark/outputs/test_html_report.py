@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from clods_bench.cli import main
-from clods_bench.benchmark.running.executors import ensure_complete_dataset
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.outputs.html_report import build_html_report
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import run_task

@@ -14,7 +14,7 @@ import pytest
 from rich.console import Console
 
 from clods_bench.cli import main
-from clods_bench.benchmark.running.executors import ensure_complete_dataset
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.reproduction.reproduce import build_configs, default_plan_path, load_plan, reproduce

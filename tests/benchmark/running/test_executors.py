@@ -111,7 +111,7 @@ def test_a_complete_dataset_of_an_edited_scene_is_not_reused(tiny_root: Path) ->
     same name gets the store's 'different config' error instead of the old trajectories (and nothing is deleted)."""
     import dataclasses
 
-    from clods_bench.benchmark.running.executors import ensure_complete_dataset
+    from clods_bench.benchmark.running.run_data import ensure_complete_dataset
     from tests.conftest import tiny_config
 
     cfg = tiny_config(tiny_root)

@@ -7,7 +7,7 @@ from pathlib import Path
 import yaml
 
 from clods_bench.benchmark.core.config import load_config
-from clods_bench.benchmark.running.executors import ensure_complete_dataset
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.records import record_dir
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import resolve_plugin_configs, run_task

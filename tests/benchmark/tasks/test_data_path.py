@@ -13,7 +13,8 @@ from clods_bench.benchmark.core.config import load_config
 from clods_bench.benchmark.running.records import RECORD_FILE, record_dir
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import run_task
-from clods_bench.datasets.generate import ensure_dataset, generate
+from clods_bench.benchmark.running.run_data import ensure_dataset
+from clods_bench.datasets.generate import generate
 from clods_bench.datasets.nerf import export_nerf
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.video_import import import_video
