@@ -382,8 +382,8 @@ def reproduce(
         canonical_name = same_as[run_name(run)]
         rows[run_name(run)] = run_digests.row_entry(run.table, run.label, record_key(summaries[canonical_name]["record_dir"]),
                                                     records[run_name(run)], None if canonical_name == run_name(run) else canonical_name)  # fmt: skip
-    numerics = next((r.get("numerics") for r in records.values() if r.get("numerics")), numerics.describe())
-    run_digests.write(out_dir / run_digests.DIGESTS_FILE, run_digests.build(preset, rows, numerics), merge_into_existing=bool(only))
+    made_with = next((r.get("numerics") for r in records.values() if r.get("numerics")), numerics.describe())
+    run_digests.write(out_dir / run_digests.DIGESTS_FILE, run_digests.build(preset, rows, made_with), merge_into_existing=bool(only))
     manifest = {
         "preset": preset,
         "plan": _shown(plan_file),
@@ -400,7 +400,7 @@ def reproduce(
         "budget_seconds": budget_seconds,
         "unfinished": unfinished,
         "wall_seconds_total": time.perf_counter() - t_start,
-        "numerics": numerics,
+        "numerics": made_with,
         "written": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
     if only:

@@ -17,10 +17,11 @@ import time
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from clods_bench import __version__, numerics
+from clods_bench import __version__
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.core.stage_digests import STAGES
 from clods_bench.errors import ClodsError
+from clods_bench.numerics import cpu_model
 
 DIGESTS_FILE = "digests.json"
 DIGESTS_FORMAT = 1
@@ -52,7 +53,7 @@ def build(preset: str, rows: dict[str, dict[str, Any]], numerics: Mapping[str, A
         "clods_bench": __version__,
         "preset": preset,
         "numerics": numerics_key(numerics),
-        "made_on": {"cpu": numerics.cpu_model(), "date": time.strftime("%Y-%m-%d")},
+        "made_on": {"cpu": cpu_model(), "date": time.strftime("%Y-%m-%d")},
         "rows": rows,
     }
 

@@ -83,7 +83,7 @@ def worker_threads(jobs: int) -> int:
     """Threads of each of `jobs` parallel workers: deterministic mode's fixed count (the numbers depend on it), else
     the cores shared out, max(1, cores // jobs)."""
     if numerics.requested():
-        return numerics.threads()
+        return numerics.pinning.threads()  # the package attribute `threads` is also its submodule of that name
     return max(1, (os.cpu_count() or 1) // int(jobs))
 
 

@@ -71,7 +71,7 @@ def test_a_result_from_other_data_is_an_error_naming_it(finished) -> None:
 def test_a_result_under_other_pins_is_an_error(finished, monkeypatch: pytest.MonkeyPatch) -> None:
     cfg, path = finished
     now = {"mode": "deterministic", "pins_version": numerics.PINS_VERSION}
-    monkeypatch.setattr(deterministic_mode, "describe", lambda: dict(now))  # deterministic whatever this process runs
+    monkeypatch.setattr(numerics, "describe", lambda: dict(now))  # deterministic whatever this process runs
     older = numerics.PINS_VERSION - 1
     _edit(path, numerics={"mode": "deterministic", "pins_version": now["pins_version"]})
     run_task(cfg, default_registry(), Console(quiet=True))  # the same pins: reused
