@@ -1,5 +1,6 @@
-"""The `clods-bench` command line: one module per command group, the parser built from them, and `main()`."""
+"""The `clods-bench` command line: one module per command group (`info`, `data`, `run`, `outputs`, `reproduce`,
+`bench`), the parser built from them and `main()` in `app` (the console script `clods_bench.cli:main`)."""
 
-from clods_bench.cli.main import build_parser, main
+from clods_bench.cli.app import build_parser, main
 
 __all__ = ["build_parser", "main"]

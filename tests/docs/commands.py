@@ -126,7 +126,7 @@ def parse(words: tuple[str, ...]) -> Any:
 def resolve(args: Any, registry: Any) -> None:
     """Everything a command does before it computes: its config built, its plugins and plan resolved."""
     from clods_bench.benchmark.core.config import load_config
-    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs
+    from clods_bench.benchmark.core.resolve import resolve_plugins
 
     def config(**fields: Any) -> Any:
         overrides = [*( [f"data.scene={args.scene}"] if getattr(args, "scene", None) else []), *args.overrides]
@@ -135,8 +135,7 @@ def resolve(args: Any, registry: Any) -> None:
     if args.command == "run":
         cfg = config(task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label,
                      train_subset=args.train_subset, seeds=args.seeds)  # fmt: skip
-        check_plugins(cfg, registry)
-        resolve_plugin_configs(cfg, registry)
+        resolve_plugins(cfg, registry)
     elif args.command == "data" and args.data_command in ("generate", "export"):
         registry.get("scene", config().data.scene)
     elif args.command == "reproduce":

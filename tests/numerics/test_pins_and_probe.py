@@ -71,14 +71,16 @@ def test_no_deterministic_reruns_the_command_on_the_host_paths() -> None:
 
 
 def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.MonkeyPatch) -> None:
-    from clods_bench.benchmark.clods.cache import digest
+    from clods_bench.benchmark.core.cache_keys import digest
+    from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.benchmark.running.records import record_dir
     from tests.conftest import tiny_config
 
     cfg = tiny_config(Path("/tmp/x"), sim="constvel")
-    pinned = (record_dir(cfg), digest({"a": 1}))
+    registry = default_registry()
+    pinned = (record_dir(cfg, registry), digest({"a": 1}))
     monkeypatch.setenv(dm.SWITCH_ENV, "0")
-    assert record_dir(cfg) != pinned[0] and digest({"a": 1}) != pinned[1]
+    assert record_dir(cfg, registry) != pinned[0] and digest({"a": 1}) != pinned[1]
     monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2"])
     check_numeric_paths()  # host mode needs nothing of the CPU
     monkeypatch.setenv(dm.SWITCH_ENV, "1")

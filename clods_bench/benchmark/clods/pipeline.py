@@ -17,7 +17,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from clods_bench.atomic import file_lock
 from clods_bench.benchmark.core import stage_digests
-from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.cache import ExtractionCache
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.noise import initial_mesh

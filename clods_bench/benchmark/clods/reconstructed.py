@@ -20,7 +20,8 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clods_bench.atomic import file_lock, write_npz
-from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.cache import ExtractionCache
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.stage0 import Stage0Config, reconstruct_initial_mesh

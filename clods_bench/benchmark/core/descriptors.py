@@ -69,6 +69,24 @@ class TaskContext:
 
 
 @dataclass(frozen=True)
+class TableLayout:
+    """How a task's run records become its table, in `clods-bench tables`, `clods-bench report` and `reproduce`.
+
+    `frame(records)` gets the records of one table (each a run's `record.json` as a dict, its `label` the row's) and
+    returns (display, numeric, notes): a pandas DataFrame shown as markdown, LaTeX and HTML (its index: the row
+    labels), one written as CSV, and footnotes (strings). `clods_bench.api.metric_frame` makes one column per metric.
+    """
+
+    frame: Callable[[list[dict[str, Any]]], tuple[Any, Any, list[str]]]
+    caption: Callable[[str, str, list[dict[str, Any]], list[str]], str] | None = None
+    """(scene, preset, records, notes) -> the caption `clods-bench tables` writes above the table (scene is '' when
+    one table holds several scenes); None: the task's name, scene, preset and seeds, then the notes."""
+    per: Literal["scene", "preset"] = "scene"
+    """'scene': one table per (scene, preset), rows by label; 'preset': one per preset, rows by (label, scene)
+    (the stability table, whose rows are simulators on several scenes)."""
+
+
+@dataclass(frozen=True)
 class TaskSpec:
     """A benchmark task: `run(context) -> TaskResult` for one seed; `needs` names required plugin kinds."""
 
@@ -79,6 +97,12 @@ class TaskSpec:
     datasets: Callable[[Any, Any], list[Any]] | None = None
     """(RunConfig, Registry) -> the DataConfigs a run reads besides `config.data` (CDG's `eval_data`): the runner
     generates them before any seed runs; a bad option raises ClodsError naming it. None: only `config.data`."""
+    table: TableLayout | None = None
+    """The layout of the task's table (`TableLayout`); None: the task has no table, and `clods-bench tables`,
+    `report` or `reproduce` asked for one stop with an error naming this field."""
+    row_label: Callable[[Any], str | None] | None = None
+    """(RunConfig) -> the row label of a run given no `label`, or None for the default: the plugin names joined by
+    '+', with '*' for the first-half training subset (CDG labels its CloDS rows 'CloDS**', 'CloDS*', 'CloDS')."""
 
 
 def spec_fields(cls: type) -> list[dataclasses.Field]:

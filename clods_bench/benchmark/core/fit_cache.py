@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.clods.cache import digest
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.core.descriptors import TaskContext
 
 FIT_CACHE_DIR = "fit_cache"

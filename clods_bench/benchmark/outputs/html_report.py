@@ -1,7 +1,7 @@
 """`clods-bench report`: one self-contained HTML page (`index.html`, images and videos embedded as base64).
 
-It holds every table found in the run records (one per task and scene/preset, the layouts of
-`tables.py`), the error-against-time plots and rollout RMSE curves of `report.py` (whose PNG and
+It holds every table found in the run records (one per task and scene/preset, in the layout each task declares,
+`TaskSpec.table`), the error-against-time plots and rollout RMSE curves of `report.py` (whose PNG and
 CSV files are kept next to the page), and the media the runs wrote: novel-view image grids
 (`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories), and, when a
 `bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot. Mesh samples
@@ -19,6 +19,8 @@ from typing import Any
 
 from clods_bench.atomic import write_text
 from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
+from clods_bench.benchmark.core.registry import Registry, default_registry
+from clods_bench.benchmark.outputs.tables import layout_frames, table_layout
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
 
@@ -103,14 +105,23 @@ def infer_section(bench_dir: Path, out_dir: Path) -> tuple[str, list[Path]]:
     return "".join(parts), [png]
 
 
-def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, media_seeds: int = 1, bench_dir: Path | None = None) -> list[Path]:
+def build_html_report(
+    runs_dir: Path,
+    out_dir: Path,
+    metric: str | None = None,
+    media_seeds: int = 1,
+    bench_dir: Path | None = None,
+    registry: Registry | None = None,
+) -> list[Path]:
     """Write `out_dir/index.html` (plus the PNG/CSV plots of `report.write_report` when CDG records exist); return the paths.
 
-    Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
+    Each task's records are shown in the table layout the task declares (`registry`: the installed plugins' by
+    default). Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
     `bench infer` results there (`infer_*.json`) get a section of their own.
     """
-    from clods_bench.benchmark.reproduction.reproduce import table_frames
     from clods_bench.benchmark.outputs.report import HEADLINE, write_report
+
+    registry = registry or default_registry()
 
     runs_dir, out_dir = Path(runs_dir), Path(out_dir)
     infer_html, infer_files = infer_section(bench_dir, out_dir) if bench_dir is not None else ("", [])
@@ -130,7 +141,7 @@ def build_html_report(runs_dir: Path, out_dir: Path, metric: str | None = None, 
             anchor = f"{task}-{scene}-{preset}".replace(" ", "_")
             toc.append(f"<li><a href='#{anchor}'>{html.escape(task)}: {html.escape(scene)}, preset {html.escape(preset)} ({len(items)} rows)</a></li>")
             records = [rec for _, rec in items]
-            display, _, note = table_frames(task, records)
+            display, _, note = layout_frames(table_layout(task, registry), records)
             parts.append(f"<h2 id='{anchor}'>{html.escape(task)}: {html.escape(scene)}, preset {html.escape(preset)}</h2>")
             parts.append(display.to_html(border=0, na_rep="n/a", escape=True))
             if note:

@@ -1,4 +1,4 @@
-"""Output of `clods-bench bench infer`: its console table, JSON and CSV per (preset, device), one stacked-bar PNG.
+"""Output of `clods-bench bench infer`: JSON and CSV per (preset, device), its table, one stacked-bar PNG.
 
 Layout of the output folder (default `bench/`): `infer_<preset>.json` / `.csv` (`infer_<preset>_<device>` on a GPU),
 and `infer_time.png`, redrawn from every `infer_*.json` there after each run, so the presets measured one after
@@ -9,17 +9,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import pandas as pd
 
 from clods_bench.atomic import atomic_path, write_json, write_text
-from clods_bench.benchmark.speed.infer_bench import PARTS, PIPELINES
 from clods_bench.errors import ClodsError
 
-if TYPE_CHECKING:
-    from rich.console import Console
-
+PIPELINES = ("clods", "traditional")
+PARTS = ("sim_step", "render")
 PLOT_FILE = "infer_time.png"
 PIPELINE_NAMES = {"clods": "CloDS", "traditional": "traditional"}
 PART_NAMES = {"sim_step": "simulator step", "render": "render (all views)"}
@@ -148,43 +146,3 @@ def infer_table(results: list[dict[str, Any]]) -> pd.DataFrame:
         row["traditional / CloDS"] = round(ratio(r), 2)
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-def print_bench_infer(console: "Console", cfg: Any, out_dir: Path, progress: bool = True, **kwargs: Any) -> dict[str, Any]:
-    """Run `bench_infer` on `cfg` with a progress bar, print its table, caps and notes, write its files; return the result."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-    from rich.table import Table
-
-    from clods_bench.benchmark.speed.infer_bench import bench_infer
-
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True, disable=not progress) as bar:
-        job = bar.add_task(f"bench infer {cfg.preset}: simulating, fitting, warming up", total=None)
-
-        def on_frame(i: int, n: int) -> None:
-            bar.update(job, description=f"bench infer {cfg.preset}: frames (first untimed)", completed=i, total=n)
-
-        r = bench_infer(cfg, on_frame=on_frame, **kwargs)
-    c, t = r["counts"], r["threads"]
-    table = Table(title=(f"clods-bench bench infer: preset {r['preset']} ({r['scene']}), {c['nodes']} nodes, {c['views']} views "
-                         f"{c['width']}x{c['height']} ({c['pixels']} pixels), {c['gaussians']} Gaussians ({c['gaussians_per_face']} per face), "
-                         f"device {r['device']}, threads: torch {t['torch']}, numba {t['numba']}, {r['sim']} {t['sim'] or 'torch default'}"
-                         + (f", cap {t['cap']}" if t["cap"] else "")))  # fmt: skip
-    for col in ("pipeline", "simulator step ms", "render ms (all views)", "total ms per frame", "min-max step / render ms"):
-        table.add_column(col, justify="left" if col == "pipeline" else "right")
-    for p in PIPELINES:
-        sim = r["sim"] if p == "clods" else r["reference_sim"]
-        ren = r["renderer"] if p == "clods" else f"rasterizer, supersample {c['raster_supersample']}"
-        s, q = r[p]["sim_step"], r[p]["render"]
-        table.add_row(f"{PIPELINE_NAMES[p]} ({sim} + {ren})", f"{s['median_ms']:.2f}", f"{q['median_ms']:.2f}", f"{r[p]['total_ms']:.2f}",
-                      f"{s['min_ms']:.1f}-{s['max_ms']:.1f} / {q['min_ms']:.1f}-{q['max_ms']:.1f}")  # fmt: skip
-    console.print(table)
-    console.print(f"traditional / CloDS per frame: {ratio(r):.2f}x "
-                  f"({'CloDS faster' if ratio(r) > 1 else 'traditional faster'} here); medians of {r['frames']} frames, total = sum of the parts' medians")  # fmt: skip
-    for cap in r["caps"]:
-        console.print(f"[bold]capped[/bold]: {cap}")
-    for note in r["notes"]:
-        console.print(f"note: {note}")
-    paths = write_infer_outputs(r, out_dir)
-    console.print("wrote " + ", ".join(str(p) for p in paths))
-    return r

@@ -19,13 +19,15 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Sequence
 
-import pandas as pd
 from rich.console import Console
 
 from clods_bench import numerics
-from clods_bench.atomic import write_json, write_text
+from clods_bench.atomic import write_json
 from clods_bench.benchmark.reproduction import run_digests
 from clods_bench.benchmark.core.config import RunConfig, load_config, read_yaml
+from clods_bench.benchmark.core.descriptors import TableLayout
+from clods_bench.benchmark.core.resolve import resolve_plugins
+from clods_bench.benchmark.outputs.tables import layout_frames, scored_scenes, table_layout, write_table
 from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.running.environment import git_commit, package_versions
 from clods_bench.benchmark.running.records import RECORD_FILE, restrict
@@ -161,8 +163,6 @@ def build_configs(
     """
     if first_seeds is not None and first_seeds < 1:
         raise ClodsError(f"first_seeds must be >= 1, got {first_seeds}", where="--first-seeds")
-    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs
-
     problems: list[str] = []
     tables = {t.id: t for t in plan.tables}
     labels: dict[str, set[tuple[str, str]]] = {}  # (label, scene) per table
@@ -189,8 +189,7 @@ def build_configs(
             fields["seeds"] = plan.seeds
         try:
             cfg = load_config(preset, config_file, [*plan.overrides, *table.overrides, *run_overrides(run), *extra_overrides], **fields)
-            check_plugins(cfg, registry)
-            cfg = resolve_plugin_configs(cfg, registry)  # rows that differ only in a plugin default are one run
+            cfg = resolve_plugins(cfg, registry)  # rows that differ only in a plugin default are one run
         except ClodsError as exc:
             problems.append(f"{where}: {exc.message}")
             continue
@@ -199,6 +198,12 @@ def build_configs(
         elif len(cfg.seeds) < 2:
             problems.append(f"{where}: {len(cfg.seeds)} seed(s); reproduce needs at least 2 (seed-to-seed std)")
         out.append((run, cfg))
+    for table in plan.tables:  # a table needs its task's layout: checked before anything runs
+        if table.task in registry.names("task"):
+            try:
+                table_layout(table.task, registry)
+            except ClodsError as exc:
+                problems.append(f"table '{table.id}': {exc.message}")
     empty = [t.id for t in plan.tables if not any(r.table == t.id for r in plan.runs)]
     if empty:
         problems.append(f"tables without runs: {', '.join(empty)}")
@@ -210,65 +215,17 @@ def build_configs(
 # ---------------------------------------------------------------- tables
 
 
-def generic_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Any task's records as a table: one 'mean ± std' column per metric, timing means as 'time/<key>' columns."""
-    from clods_bench.benchmark.outputs.tables import fmt_cell
-
-    metric_keys = sorted({k for r in records for k in r["metrics"]})
-    timing_keys = sorted({k for r in records for k in r["timings"] if not k.startswith("fit/")})
-    display_rows, numeric_rows, index = [], [], []
-    for rec in records:
-        row, num = {}, {"method": rec["label"], "seeds": len(rec["seeds"])}
-        for key in metric_keys:
-            v = rec["metrics"].get(key) or {}
-            mean = float("nan") if v.get("mean") is None else float(v["mean"])
-            std = float("nan") if v.get("std") is None else float(v["std"])
-            row[key] = fmt_cell(mean, std)
-            num[f"{key}/mean"], num[f"{key}/std"] = mean, std
-        for key in timing_keys:
-            v = (rec["timings"].get(key) or {}).get("mean")
-            value = float("nan") if v is None else float(v)
-            row[f"time: {key}"] = f"{value:.3g}"
-            num[f"time/{key}"] = value
-        display_rows.append(row)
-        numeric_rows.append(num)
-        index.append(rec["label"])
-    return pd.DataFrame(display_rows, index=pd.Index(index, name="Method")), pd.DataFrame(numeric_rows)
-
-
-def table_frames(task: str, records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame, str]:
-    """(display, numeric, footnote) in the layout of `task`; tasks without a dedicated layout get `generic_frame`."""
-    from clods_bench.benchmark.outputs import tables
-
-    if task in ("cdg", "stability"):
-        display, numeric = (tables.cdg_frame if task == "cdg" else tables.stability_frame)(records)
-        return display, numeric, ""
-    layouts = {"nvs": tables.nvs_frame, "extract": tables.extract_frame, "dvc": tables.dvc_frame, "dvc_multi": tables.dvc_multi_frame}
-    if task in layouts:
-        display, numeric, notes = layouts[task](records)
-        return display, numeric, "; ".join(notes)
-    display, numeric = generic_frame(records)
-    return display, numeric, ""
-
-
 FIRST_SEED_DIR = "first_seed"
 """Subfolder of a reproduce output holding every table's CSV over the first seed alone (what `--first-seeds 1` checks)."""
 
 
-def write_plan_table(table: PlanTable, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
-    """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table, rows in plan order."""
-    from clods_bench.benchmark.outputs.tables import scored_scenes, to_markdown
-
-    display, numeric, note = table_frames(table.task, records)
+def write_plan_table(table: PlanTable, layout: TableLayout, records: list[dict[str, Any]], out_dir: Path, preset: str) -> list[Path]:
+    """Write `<id>.md`, `<id>.tex` and `<id>.csv` for one plan table in its task's `layout`, rows in plan order."""
+    display, numeric, note = layout_frames(layout, records)
     seeds = "/".join(str(n) for n in sorted({len(r["seeds"]) for r in records}))
     scenes = ", ".join(sorted(set().union(*(scored_scenes(r) for r in records))))
     caption = f"{table.title} ({scenes}, preset {preset}; mean ± std over {seeds} seeds)" + (f". {note}" if note else "")
-    stem = Path(out_dir) / table.id
-    markdown = to_markdown(display) if isinstance(display.columns, pd.MultiIndex) else display.to_markdown()
-    write_text(stem.with_suffix(".md"), f"{caption}\n\n{markdown}\n")
-    write_text(stem.with_suffix(".tex"), display.to_latex(caption=caption, multicolumn_format="c"))
-    write_text(stem.with_suffix(".csv"), numeric.to_csv(index=False))
-    return [stem.with_suffix(s) for s in (".md", ".tex", ".csv")]
+    return write_table(Path(out_dir) / table.id, caption, display, numeric)
 
 
 # ---------------------------------------------------------------- the command
@@ -367,11 +324,11 @@ def reproduce(
             console.print(f"[bold]{table.id}[/bold]: not written, {len(unfinished[table.id])} row(s) left by the time budget")
             continue
         recs = [records[run_name(r)] for r in plan.runs if r.table == table.id]
-        written += [p.name for p in write_plan_table(table, recs, out_dir, preset)]
+        written += [p.name for p in write_plan_table(table, table_layout(table.task, registry), recs, out_dir, preset)]
         first = min(recs[0]["seeds"]) if recs and recs[0]["seeds"] else None
         if any(len(r["seeds"]) > 1 for r in recs):  # the first seed's table too: what a `--first-seeds 1` check compares with
             single = [restrict(r, [min(r["seeds"])]) for r in recs]
-            write_plan_table(table, single, out_dir / FIRST_SEED_DIR, preset)
+            write_plan_table(table, table_layout(table.task, registry), single, out_dir / FIRST_SEED_DIR, preset)
         elif first is not None and (out_dir / FIRST_SEED_DIR).is_dir():
             (out_dir / FIRST_SEED_DIR / f"{table.id}.csv").unlink(missing_ok=True)  # a stale one from an earlier 2-seed run
         console.print(f"[bold]{table.id}[/bold]: {len(recs)} row(s)")

@@ -19,6 +19,7 @@ from clods_bench import numerics
 from clods_bench.atomic import write_json
 from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.benchmark.core.descriptors import TaskResult
+from clods_bench.benchmark.core.registry import Registry
 from clods_bench.benchmark.running.environment import git_commit, package_versions
 from clods_bench.benchmark.scoring.metrics import mean_std
 from clods_bench.errors import ClodsError
@@ -27,21 +28,23 @@ RESULT_FILE = "result.json"
 RECORD_FILE = "record.json"
 
 
-def default_label(cfg: RunConfig) -> str:
-    """Row label: explicit label, else the plugin name(s), '*' marking the first-half training subset."""
+def default_label(cfg: RunConfig, registry: Registry) -> str:
+    """Row label: the explicit label, else the one the task declares for the config (`TaskSpec.row_label`, e.g. CDG's
+    CloDS rows), else the plugin name(s), '*' marking the first-half training subset."""
     if cfg.label:
         return cfg.label
-    if cfg.task == "cdg" and cfg.sim and cfg.renderer:  # a simulator learned from video: the CloDS rows
-        from clods_bench.benchmark.clods.labels import clods_label
-
-        return clods_label(cfg)
+    declare = getattr(registry.get("task", cfg.task), "row_label", None)
+    declared = declare(cfg) if declare is not None else None
+    if declared:
+        return str(declared)
     parts = [p for p in (cfg.sim, cfg.renderer, cfg.predictor) if p]
     label = "+".join(parts) or cfg.task
     return label + ("*" if cfg.train_subset == "first_half" else "")
 
 
-def record_dir(cfg: RunConfig) -> Path:
-    """Deterministic record directory: the same config (seeds aside) resumes into the same place."""
+def record_dir(cfg: RunConfig, registry: Registry) -> Path:
+    """Deterministic record directory: the same config (seeds aside) resumes into the same place. Its folder is
+    named after the row label (`default_label`), its last part after a digest of the config."""
     ident = cfg.to_dict()
     for key in ("seeds", "progress", "runs_dir"):
         ident.pop(key)
@@ -60,7 +63,7 @@ def record_dir(cfg: RunConfig) -> Path:
     if numerics.numeric_mode() != "deterministic":  # the host's own floating-point paths: never mixed with
         ident["numeric_mode"] = numerics.numeric_mode()  # deterministic records (those keep their digest)
     digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:8]
-    slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg).replace("*", "-star"))
+    slug = re.sub(r"[^A-Za-z0-9_.+-]", "_", default_label(cfg, registry).replace("*", "-star"))
     return Path(cfg.runs_dir) / cfg.task / slug / f"{cfg.data.scene}-{cfg.preset}-{digest}"
 
 
@@ -111,12 +114,12 @@ def save_seed_result(rdir: Path, seed: int, result: TaskResult, data_digests: Se
     return json.loads(json.dumps(payload, default=str))
 
 
-def aggregate(cfg: RunConfig, rdir: Path, per_seed: dict[int, dict[str, Any]], extra_timings: dict[str, float]) -> dict[str, Any]:
-    """Write `record.json`: mean +- std over seeds of every metric and timing, plus provenance."""
+def aggregate(cfg: RunConfig, label: str, rdir: Path, per_seed: dict[int, dict[str, Any]], extra_timings: dict[str, float]) -> dict[str, Any]:
+    """Write `record.json` of the row `label`: mean +- std over seeds of every metric and timing, plus provenance."""
     seeds = sorted(per_seed)
     record = {
         "task": cfg.task,
-        "label": default_label(cfg),
+        "label": label,
         "sim": cfg.sim,
         "renderer": cfg.renderer,
         "scene": cfg.data.scene,

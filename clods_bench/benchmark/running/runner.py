@@ -1,11 +1,11 @@
-"""Run a task over its seeds: check plugins, make sure the data exists, resume finished seeds, aggregate."""
+"""Run a task over its seeds: resolve its plugins, make sure the data exists, resume finished seeds, aggregate."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 from rich.console import Console
 
@@ -14,83 +14,11 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.config import RunConfig, save_config
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.determinism import seed_everything
-from clods_bench.benchmark.running.records import aggregate, record_dir, reusable_seed_result, save_seed_result
+from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
+from clods_bench.benchmark.running.records import aggregate, default_label, record_dir, reusable_seed_result, save_seed_result
 from clods_bench.benchmark.core.registry import Registry
 from clods_bench.datasets.digest import content_digest
 from clods_bench.datasets.store import DatasetStore
-from clods_bench.errors import ClodsError
-
-
-def _named_plugin(registry: Registry, kind: str, name: str, option: str) -> Any:
-    """`registry.get(kind, name)`, its unknown-name error naming the run option that gave the name."""
-    try:
-        return registry.get(kind, name)
-    except ClodsError as exc:
-        raise ClodsError(exc.what, where=option, hint=exc.hint) from None
-
-
-def check_plugins(cfg: RunConfig, registry: Registry) -> None:
-    """Fail before any work if the task, scene or a needed plugin is unknown or missing.
-
-    The simulator is looked up by name for every task, the CloDS rows' backbone included, so any registered
-    simulator (a third-party one too) can be named; an unknown name fails here, naming the option `sim`.
-    """
-    task = registry.get("task", cfg.task)
-    registry.get("scene", cfg.data.scene)
-    task_datasets(cfg, registry)  # e.g. CDG's eval_data: its fields and scene
-    if cfg.sim:
-        _named_plugin(registry, "simulator", cfg.sim, "sim")
-    if "sim" in task.needs:
-        if not cfg.sim:
-            raise ClodsError(f"task '{cfg.task}' needs a simulator", where="--sim", hint=f"one of {registry.names('simulator')}")
-        spec = registry.get("simulator", cfg.sim)
-        spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
-    if "renderer" in task.needs:
-        if not cfg.renderer:
-            raise ClodsError(f"task '{cfg.task}' needs a renderer", where="--renderer", hint=f"one of {registry.names('renderer')}")
-        spec = registry.get("renderer", cfg.renderer)
-        spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
-    if cfg.sim and "sim" not in task.needs:  # optional plugins (dvc takes --sim --renderer or --predictor): checked all the same
-        registry.get("simulator", cfg.sim).make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
-    if cfg.renderer and "renderer" not in task.needs:
-        registry.get("renderer", cfg.renderer).make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
-    if cfg.predictor:
-        spec = registry.get("video_predictor", cfg.predictor)
-        spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
-
-
-def task_datasets(cfg: RunConfig, registry: Registry) -> list[Any]:
-    """The DataConfigs the run's task reads besides `cfg.data` (its TaskSpec's `datasets`; none for most tasks)."""
-    extra = getattr(registry.get("task", cfg.task), "datasets", None)
-    return list(extra(cfg, registry)) if extra is not None else []
-
-
-def _plain(value: Any) -> Any:
-    """Tuples to lists, recursively: what YAML and JSON give back, so a resolved config reloads to itself."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value
-
-
-def resolve_plugin_configs(cfg: RunConfig, registry: Registry) -> RunConfig:
-    """`cfg` with the complete options of every plugin it uses (its config dataclass, defaults filled in).
-
-    What a run saves (config.yaml) and what names its record directory then includes the plugins' defaults:
-    a changed default gives a new record instead of silently reusing one made with the old value.
-    Idempotent; plugins the run does not use keep their mappings as they are.
-    """
-    used = (("simulator", cfg.sim, "sim_config"), ("renderer", cfg.renderer, "renderer_config"), ("video_predictor", cfg.predictor, "video_config"))
-    changes: dict[str, dict[str, dict[str, Any]]] = {}
-    for kind, name, field_name in used:
-        if not name:
-            continue
-        mapping = dict(getattr(cfg, field_name))
-        plugin_cfg = registry.get(kind, name).make_config(mapping.get(name, {}), where=f"{field_name}.{name}")
-        mapping[name] = _plain(dataclasses.asdict(plugin_cfg))
-        changes[field_name] = mapping
-    return dataclasses.replace(cfg, **changes) if changes else cfg
 
 
 def run_data_digests(cfg: RunConfig, registry: Registry) -> list[str]:
@@ -112,10 +40,9 @@ def run_task(
 
 
 def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data: Callable[[RunConfig, Registry, bool], object] | None) -> Path:
-    check_plugins(cfg, registry)
-    cfg = resolve_plugin_configs(cfg, registry)
+    cfg = resolve_plugins(cfg, registry)
     task = registry.get("task", cfg.task)
-    rdir = record_dir(cfg)
+    rdir = record_dir(cfg, registry)
     rdir.mkdir(parents=True, exist_ok=True)
     save_config(cfg, rdir / "config.yaml")
 
@@ -150,5 +77,5 @@ def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data:
         result.timings.setdefault("seed_seconds", time.perf_counter() - t0)
         result.timings.setdefault("seed_cpu_seconds", time.process_time() - c0)  # this process's CPU time: robust to a loaded host
         per_seed[seed] = save_seed_result(rdir, seed, result, data_digests)
-    aggregate(cfg, rdir, per_seed, run_timings)
+    aggregate(cfg, default_label(cfg, registry), rdir, per_seed, run_timings)
     return rdir

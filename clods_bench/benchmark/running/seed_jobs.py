@@ -16,6 +16,7 @@ from typing import Any, Sequence
 from rich.console import Console
 
 from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
 from clods_bench.benchmark.running.executors import LocalExecutor, RayExecutor, SeedJob
 from clods_bench.benchmark.running.records import load_seed_result, record_dir, reusable_seed_result
 from clods_bench.benchmark.running.run_data import ensure_complete_dataset
@@ -58,11 +59,9 @@ def run_configs(
     """
     if deadline is not None and executor.name != "local":  # before any dataset is generated
         raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
-    from clods_bench.benchmark.running.runner import check_plugins, resolve_plugin_configs, run_data_digests, run_task, task_datasets
+    from clods_bench.benchmark.running.runner import run_data_digests, run_task
 
-    for name, cfg in configs:
-        check_plugins(cfg, registry)
-    configs = [(name, resolve_plugin_configs(absolute_paths(cfg), registry)) for name, cfg in configs]
+    configs = [(name, resolve_plugins(absolute_paths(cfg), registry)) for name, cfg in configs]
     parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     seen: set[Path] = set()
     for name, cfg in configs:
@@ -78,7 +77,7 @@ def run_configs(
     def reusable(name: str, cfg: RunConfig, seed: int) -> bool:
         """Whether the seed has a result to reuse (one made from other data or under other pins is an error, here
         before any job starts)."""
-        rdir = record_dir(cfg)
+        rdir = record_dir(cfg, registry)
         if load_seed_result(rdir, seed) is None:
             return False
         if name not in digests:
@@ -105,7 +104,7 @@ def run_configs(
     summaries = []
     for name, cfg in configs:
         mine = [r for r in results if r is not None and r["name"] == name]
-        rdir = record_dir(cfg)
+        rdir = record_dir(cfg, registry)
         summary = {"name": name, "record_dir": str(rdir), "wall_seconds": sum(r["wall_seconds"] for r in mine),
                    "seeds_run": sorted(r["seed"] for r in mine), "complete": True}  # fmt: skip
         if any(load_seed_result(rdir, seed) is None for seed in cfg.seeds):

@@ -28,6 +28,7 @@ import numpy as np
 
 from clods_bench.benchmark.core.descriptors import BuildContext
 from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.outputs.infer_output import PARTS, PIPELINES
 from clods_bench.benchmark.speed.sim_bench import WARMUP_OPTIONS, step_option
 from clods_bench.datasets.generate import make_cameras, make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
@@ -40,8 +41,6 @@ if TYPE_CHECKING:
     from clods_bench.benchmark.core.config import RunConfig
     from clods_bench.benchmark.core.registry import Registry
 
-PIPELINES = ("clods", "traditional")
-PARTS = ("sim_step", "render")
 REFERENCE_SIM = "physics"
 """The traditional pipeline's simulator plugin."""
 

@@ -7,7 +7,9 @@ import time
 import numpy as np
 from rich.progress import Progress
 
+from clods_bench.benchmark.clods.labels import clods_label
 from clods_bench.benchmark.core.builders import build_simulator, data_splits, fit_on_meshes
+from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.datasets.data_config import DataConfig
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.eval_data import WHERE, scored_data
@@ -20,6 +22,12 @@ from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
+
+
+def cdg_row_label(cfg: RunConfig) -> str | None:
+    """The row label of a CDG run given none: a simulator learned from video (--sim and --renderer) is a CloDS row
+    ('CloDS**', 'CloDS*', 'CloDS', see `clods.labels`); other rows get the default (their plugin names)."""
+    return clods_label(cfg) if cfg.sim and cfg.renderer else None
 
 
 def run_cdg(ctx: TaskContext) -> TaskResult:

@@ -51,10 +51,10 @@ def test_constvel_from_video_matches_mesh_supervised_rollouts(tiny_root: Path, t
 
 def test_labels_and_variants(tiny_root: Path):
     cfg = tiny_config(tiny_root, sim="mgn", renderer="smgs")
-    assert default_label(cfg) == "CloDS**"
+    assert default_label(cfg, default_registry()) == "CloDS**"
     assert clods_label(tiny_config(tiny_root, sim="mgn", renderer="smgs", train_subset="first_half")) == "CloDS*"
     fine = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="mgn", renderer="smgs")
-    assert default_label(fine) == "CloDS" and clods_config(fine).variant == "finetune"
+    assert default_label(fine, default_registry()) == "CloDS" and clods_config(fine).variant == "finetune"
     with pytest.raises(ClodsError, match="task_config.clods"):
         clods_config(tiny_config(tiny_root, "task_config.clods.gama=0.1"))
     with pytest.raises(ClodsError, match="num_cameras"):
@@ -157,17 +157,17 @@ class _ThirdPartySim:
 
 
 def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_root: Path, tmp_path: Path):
-    """Fast half of the check below: check_plugins accepts the name, stage 3 builds that plugin with its overrides."""
+    """Fast half of the check below: resolve_plugins accepts the name, stage 3 builds that plugin with its overrides."""
     from clods_bench.benchmark.clods.config import clods_config
     from clods_bench.benchmark.clods.stage3 import stage3_context
     from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
-    from clods_bench.benchmark.running.runner import check_plugins
+    from clods_bench.benchmark.core.resolve import resolve_plugins
     from clods_bench.benchmark.core.builders import build_simulator
 
     registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
     cfg = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="acme", renderer="smgs")
-    check_plugins(cfg, registry)
+    resolve_plugins(cfg, registry)
     ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path, registry=registry)
     sim = build_simulator(stage3_context(ctx, clods_config(cfg)))
     assert sim.name == "acme" and sim.config.loss == "rollout"  # the stage-3 default: eq. 8's rollout loss

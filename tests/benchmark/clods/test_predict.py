@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.clods.cache import digest
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import start_guess
 from clods_bench.benchmark.clods.pipeline import extraction_identity

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.clods.cache import digest
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.pipeline import extraction_identity
 from clods_bench.benchmark.clods.smooth import savgol_positions, smooth_meshes, smoothing_tag

@@ -5,13 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import run_task
-from clods_bench.benchmark.outputs.tables import fmt_cell, write_tables
+from clods_bench.benchmark.outputs.tables import fmt_cell, metric_frame, write_tables
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
 
@@ -69,3 +70,17 @@ def test_no_records_is_a_clear_error(tmp_path: Path) -> None:
 def test_fmt_cell() -> None:
     assert fmt_cell(0.12934, 0.0241) == "0.1293 ± 0.0241"
     assert fmt_cell(float("nan"), 0.0, diverged=17) == "diverged@17"
+
+
+def test_the_metric_layout_gives_one_column_per_metric() -> None:
+    """`metric_frame` (the initial-mesh task's layout, and a third-party task's in one line)."""
+    recs = [
+        {"label": "copy", "seeds": [0, 1], "metrics": {"psnr": {"mean": 20.0, "std": 0.5}}, "timings": {"fit_seconds": {"mean": 2.0, "std": 0.0}, "fit/loss": {"mean": 1.0}}},
+        {"label": "simvp", "seeds": [0, 1], "metrics": {"psnr": {"mean": 25.0, "std": None}, "ssim": {"mean": 0.9, "std": 0.01}}, "timings": {}},
+    ]
+    display, numeric, notes = metric_frame(recs)
+    assert list(display.index) == ["copy", "simvp"] and notes == []
+    assert display.loc["copy", "psnr"] == "20.0000 ± 0.5000" and display.loc["copy", "ssim"] == "n/a"
+    row = numeric.set_index("method").loc["simvp"]
+    assert row["psnr/mean"] == 25.0 and np.isnan(row["psnr/std"]) and row["ssim/mean"] == 0.9 and np.isnan(row["time/fit_seconds"])
+    assert "time/fit/loss" not in numeric.columns

@@ -154,7 +154,7 @@ def test_skip_columns_leave_std_and_seed_count_out(tmp_path: Path) -> None:
 
 
 def test_failure_kind_drops_the_measured_values() -> None:
-    from clods_bench.benchmark.outputs.tables import failure_kind
+    from clods_bench.benchmark.outputs.rollout_tables import failure_kind
 
     assert failure_kind("edge strain 0.523 > 0.5") == "edge strain"
     assert failure_kind("kinetic energy 1.2e+03 J > 10 J") == "kinetic energy"

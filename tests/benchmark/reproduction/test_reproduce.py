@@ -198,21 +198,6 @@ def test_same_learned_config_twice_gives_identical_metrics(tmp_path: Path, tiny_
     assert other["per_seed"]["1"]["metrics"] != recs[0]["per_seed"]["0"]["metrics"]  # the seed does matter
 
 
-def test_tasks_without_a_layout_get_one_column_per_metric() -> None:
-    from clods_bench.benchmark.reproduction.reproduce import table_frames
-
-    recs = [
-        {"label": "copy", "seeds": [0, 1], "metrics": {"psnr": {"mean": 20.0, "std": 0.5}}, "timings": {"fit_seconds": {"mean": 2.0, "std": 0.0}, "fit/loss": {"mean": 1.0}}},
-        {"label": "simvp", "seeds": [0, 1], "metrics": {"psnr": {"mean": 25.0, "std": None}, "ssim": {"mean": 0.9, "std": 0.01}}, "timings": {}},
-    ]
-    display, numeric, note = table_frames("some-new-task", recs)
-    assert list(display.index) == ["copy", "simvp"] and note == ""
-    assert display.loc["copy", "psnr"] == "20.0000 ± 0.5000" and display.loc["copy", "ssim"] == "n/a"
-    row = numeric.set_index("method").loc["simvp"]
-    assert row["psnr/mean"] == 25.0 and np.isnan(row["psnr/std"]) and row["ssim/mean"] == 0.9 and np.isnan(row["time/fit_seconds"])
-    assert "time/fit/loss" not in numeric.columns
-
-
 def test_override_order_plan_then_table_then_run_then_command_line(tmp_path: Path) -> None:
     text = (
         "version: 1\noverrides: [data.num_test=5, data.num_train=6]\n"

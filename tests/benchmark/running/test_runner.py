@@ -10,7 +10,8 @@ from clods_bench.benchmark.core.config import load_config
 from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.records import record_dir
 from clods_bench.benchmark.core.registry import default_registry
-from clods_bench.benchmark.running.runner import resolve_plugin_configs, run_task
+from clods_bench.benchmark.core.resolve import resolve_plugins
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig
 from tests.conftest import tiny_config
 
@@ -19,11 +20,11 @@ def test_plugin_defaults_are_filled_in_and_resolving_twice_changes_nothing() -> 
     reg = default_registry()
     cfg = load_config("ci", overrides=["renderer_config.gs3d.iterations=7"], task="nvs", renderer="gs3d")
     assert cfg.renderer_config.get("gs3d") == {"iterations": 7}
-    full = resolve_plugin_configs(cfg, reg)
+    full = resolve_plugins(cfg, reg)
     gs3d = full.renderer_config["gs3d"]
     assert gs3d["iterations"] == 7 and gs3d["init"] == Gs3dConfig().init and gs3d["num_gaussians"] == Gs3dConfig().num_gaussians
     assert gs3d["background"] == list(Gs3dConfig().background)  # tuples as lists: what YAML gives back
-    assert resolve_plugin_configs(full, reg) == full
+    assert resolve_plugins(full, reg) == full
     assert "mgn" in full.sim_config and full.sim_config["mgn"] == cfg.sim_config["mgn"]  # an unused plugin is left alone
 
 
@@ -31,7 +32,7 @@ def test_a_changed_plugin_default_names_another_record_and_stating_the_default_d
     reg = default_registry()
 
     def rdir(*sets: str) -> Path:
-        return record_dir(resolve_plugin_configs(load_config("ci", overrides=list(sets), task="nvs", renderer="gs3d"), reg))
+        return record_dir(resolve_plugins(load_config("ci", overrides=list(sets), task="nvs", renderer="gs3d"), reg), reg)
 
     default = rdir()
     assert rdir(f"renderer_config.gs3d.init={Gs3dConfig().init}") == default  # the same run, said explicitly
@@ -42,9 +43,9 @@ def test_the_saved_config_holds_the_plugins_full_options(tmp_path: Path, tiny_ro
     cfg = tiny_config(tiny_root, f"runs_dir={tmp_path / 'runs'}", task="cdg", sim="physics")
     rdir = run_task(cfg, default_registry(), ensure_data=ensure_complete_dataset)
     saved = yaml.safe_load((rdir / "config.yaml").read_text())
-    assert saved["sim_config"]["physics"] == resolve_plugin_configs(cfg, default_registry()).sim_config["physics"]
+    assert saved["sim_config"]["physics"] == resolve_plugins(cfg, default_registry()).sim_config["physics"]
     assert "dt_factor" in saved["sim_config"]["physics"]  # a default nobody set, recorded all the same
-    assert rdir == record_dir(resolve_plugin_configs(cfg, default_registry()))
+    assert rdir == record_dir(resolve_plugins(cfg, default_registry()), default_registry())
 
 
 def test_options_of_plugins_the_run_does_not_use_do_not_move_its_record() -> None:
@@ -52,7 +53,7 @@ def test_options_of_plugins_the_run_does_not_use_do_not_move_its_record() -> Non
     reg = default_registry()
 
     def rdir(*sets: str, **fields: str) -> Path:
-        return record_dir(resolve_plugin_configs(load_config("ci", overrides=list(sets), **fields), reg))
+        return record_dir(resolve_plugins(load_config("ci", overrides=list(sets), **fields), reg), reg)
 
     cdg = {"task": "cdg", "sim": "mgn", "renderer": "smgs"}
     base = rdir(**cdg)

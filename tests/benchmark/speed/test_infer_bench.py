@@ -18,7 +18,8 @@ from clods_bench.benchmark.core.config import load_config
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.benchmark.speed.infer_bench import bench_infer, check_device
-from clods_bench.benchmark.outputs.infer_output import load_infer_results, print_bench_infer, result_rows, write_infer_outputs
+from clods_bench.benchmark.outputs.infer_output import load_infer_results, result_rows, write_infer_outputs
+from clods_bench.benchmark.speed.infer_console import print_bench_infer
 from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.errors import ClodsError

@@ -59,10 +59,10 @@ def test_data_path_takes_the_sizes_from_the_dataset(imported: dict[str, Path], t
 def test_unset_path_keeps_dataset_and_record_names(tiny_root: Path) -> None:
     cfg = tiny_config(tiny_root)
     assert "path" not in cfg.data.identity()  # so generated datasets keep the directory names they had
-    rdir = record_dir(cfg)
+    rdir = record_dir(cfg, default_registry())
     d = cfg.to_dict()
     d["data"].pop("path")
-    assert "path" not in json.dumps(d["data"]) and rdir == record_dir(cfg)
+    assert "path" not in json.dumps(d["data"]) and rdir == record_dir(cfg, default_registry())
 
 
 def test_dvc_copylast_gives_the_same_numbers(imported: dict[str, Path], tiny_root: Path, tmp_path: Path) -> None:
