@@ -11,7 +11,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 
 BROKEN_IMPORT = '''
 import clods_bench_missing_dependency  # not installed: the import fails

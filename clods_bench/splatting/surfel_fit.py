@@ -3,7 +3,7 @@
 Why: stage 0 of CloDS (paper appendix, "Initial mesh extraction ... using 2D Gaussian Splatting"): the
 initial cloth mesh comes from TSDF fusion of the fitted surfels' median-depth maps (done elsewhere).
 Kept simple: one surfel per given point, Adam on L1 (+ D-SSIM) + the 2DGS normal-consistency and
-depth-distortion regularisers (`surfels.surfel_losses`), no densification, transparent surfels pruned at
+depth-distortion regularisers (`surfel_losses`), no densification, transparent surfels pruned at
 the end. Parameterisation: opacity = sigmoid(logit), scales = exp(log-scale), colours = sigmoid(logit),
 quaternions (w, x, y, z) raw (the renderer normalises them). Runs in float64 on the CPU, or with
 backend 'gsplat' on the CUDA GPU (parameters and images there; gsplat composites in float32).
@@ -21,7 +21,8 @@ from torch import Tensor
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
 from clods_bench.splatting.checks import check_cameras
-from clods_bench.splatting.surfels import SurfelBackend, render_surfels, surfel_losses
+from clods_bench.splatting.surfel_losses import surfel_losses
+from clods_bench.splatting.surfels import SurfelBackend, render_surfels
 
 F64 = torch.float64
 

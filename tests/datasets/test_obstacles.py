@@ -15,9 +15,9 @@ from clods_bench.datasets.obstacles import (
     ObstaclePath,
     Sphere,
     TriangleMeshObstacle,
-    icosphere,
     overlap,
 )
+from clods_bench.datasets.obstacle_meshes import icosphere
 from clods_bench.errors import ClodsError
 
 

@@ -13,13 +13,8 @@ import torch
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.errors import ClodsError
 from clods_bench.splatting import surfel_kernels as SK
-from clods_bench.splatting.surfels import (
-    depth_normals,
-    intersect_reference,
-    project_surfels,
-    render_surfels,
-    surfel_losses,
-)
+from clods_bench.splatting.surfel_losses import depth_normals, surfel_losses
+from clods_bench.splatting.surfels import intersect_reference, project_surfels, render_surfels
 
 F64 = torch.float64
 OUTPUTS = ("rgb", "alpha", "depth_median", "depth_expected", "normal", "distortion")

@@ -116,7 +116,7 @@ def test_seed_spread_matches_a_hand_computation(tmp_path: Path) -> None:
 
 def test_committed_tolerance_file_is_exact_but_for_timings() -> None:
     """results/ci is made in deterministic mode: every cell but the timings must be equal, learned rows included."""
-    spec = load_tolerance(Path(__file__).resolve().parents[2] / "results" / "ci" / TOLERANCE_FILE)
+    spec = load_tolerance(Path(__file__).resolve().parents[3] / "results" / "ci" / TOLERANCE_FILE)
     assert "deterministic mode" in spec.justification and spec.rules == []
     assert spec.for_cell("table2_cdg.csv", "Frozen", "infer_ms_per_step") is None
     assert spec.for_cell("table3_nvs.csv", "SMGS", "fit_seconds") is None

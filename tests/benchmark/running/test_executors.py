@@ -207,7 +207,7 @@ def _start_sleepers(tmp_path: Path) -> tuple["subprocess.Popen[str]", list[int]]
     script.write_text(_SLEEPER)
     pids = tmp_path / "pids"
     pids.mkdir()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[3]), os.environ.get("PYTHONPATH", "")]))
     parent = subprocess.Popen([sys.executable, str(script), str(pids)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     deadline = time.monotonic() + 120
     while len(list(pids.glob("*.pid"))) < 2:
