@@ -37,7 +37,7 @@ def clods_bench_simulators():
 
 DEPRECATED_SCENE = '''
 """A scene written for the pre-1.0 form: SceneSpec(kind=...) with a build_mesh override."""
-from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.api import hookimpl
 from clods_bench.datasets.cloth_solver import SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import SceneSpec
@@ -134,6 +134,37 @@ class Still:
 def clods_bench_simulators():
     return [PluginSpec(name="good-sim", description="works", build=lambda cfg, ctx: Still())]
 '''
+
+TASKS = '''
+"""Two third-party tasks: one declares its table layout and row label, the other neither."""
+import pandas as pd
+from clods_bench.api import TableLayout, TaskResult, TaskSpec, hookimpl
+
+CLODS_BENCH_API = "1.2"
+
+
+def run(ctx):
+    return TaskResult(metrics={"score": 0.25 + ctx.seed}, timings={"fit_seconds": 0.0})
+
+
+def frame(records):
+    display = pd.DataFrame([{"Score": f"{r['metrics']['score']['mean']:.2f}"} for r in records],
+                           index=pd.Index([r["label"] for r in records], name="Coin"))
+    numeric = pd.DataFrame([{"method": r["label"], "score": r["metrics"]["score"]["mean"]} for r in records])
+    return display, numeric, ["one coin per seed"]
+
+
+def caption(scene, preset, records, notes):
+    return f"Coin flips ({scene}, preset {preset}): {'; '.join(notes)}."
+
+
+@hookimpl
+def clods_bench_tasks():
+    return [TaskSpec(name="coin-flip", description="declares its table", run=run,
+                     table=TableLayout(frame=frame, caption=caption), row_label=lambda cfg: "coin"),
+            TaskSpec(name="no-table", description="declares no table", run=run)]
+'''
+"""A distribution of its own (not in PACKAGES): tasks, for the table tests."""
 
 PACKAGES: dict[str, str] = {
     "broken-import": BROKEN_IMPORT,

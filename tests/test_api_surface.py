@@ -63,13 +63,14 @@ def test_the_changelog_names_the_api_version() -> None:
     [
         ("1.0", None),
         ("1.1", None),
-        ("1.2", "it needs plugin API 1.2; this release offers plugin API 1.1 (and loads plugins for 1.0 to 1.1)"),
-        ("2.0", "it needs plugin API 2.0; this release offers plugin API 1.1 (and loads plugins for 1.0 to 1.1)"),
-        ("0.9", "it needs plugin API 0.9; this release offers plugin API 1.1 (and loads plugins for 1.0 to 1.1)"),
-        (1.1, "CLODS_BENCH_API = 1.1 is not a version like '1.1'; this release offers plugin API 1.1 (and loads plugins for 1.0 to 1.1)"),
-        ("1.1.0", "CLODS_BENCH_API = '1.1.0' is not a version like '1.1'; this release offers plugin API 1.1 (and loads plugins for 1.0 to 1.1)"),
+        ("1.2", None),
+        ("1.3", "it needs plugin API 1.3; this release offers plugin API 1.2 (and loads plugins for 1.0 to 1.2)"),
+        ("2.0", "it needs plugin API 2.0; this release offers plugin API 1.2 (and loads plugins for 1.0 to 1.2)"),
+        ("0.9", "it needs plugin API 0.9; this release offers plugin API 1.2 (and loads plugins for 1.0 to 1.2)"),
+        (1.1, "CLODS_BENCH_API = 1.1 is not a version like '1.2'; this release offers plugin API 1.2 (and loads plugins for 1.0 to 1.2)"),
+        ("1.1.0", "CLODS_BENCH_API = '1.1.0' is not a version like '1.2'; this release offers plugin API 1.2 (and loads plugins for 1.0 to 1.2)"),
     ],
 )
 def test_declared_api_versions(declared: object, problem: str | None) -> None:
-    assert parse_api_version(API_VERSION) == (1, 1)
+    assert parse_api_version(API_VERSION) == (1, 2)
     assert api_version_problem(declared) == problem

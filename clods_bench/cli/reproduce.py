@@ -60,8 +60,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.running.executors import default_jobs
     from clods_bench.benchmark.reproduction.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
+    from clods_bench.benchmark.running.executors import default_jobs
 
     out = args.out or Path("results") / args.preset
     if args.check is not None and out.resolve() == args.check.resolve():

@@ -22,10 +22,9 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from clods_bench.atomic import file_lock
-from clods_bench.datasets.data_config import DataConfig
-from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import canonical
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
 from clods_bench.datasets.scenes import SceneSpec, simulate_scene
@@ -33,6 +32,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.textures import make_named_texture, save_texture
 from clods_bench.datasets.types import ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 TEXTURE_FILE = "texture.png"
 FRAME_MODES = ("stored", "on_demand")

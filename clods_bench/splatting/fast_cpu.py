@@ -23,8 +23,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from clods_bench.splatting import fast_kernels as K
-from clods_bench.splatting import projection_kernels as PK
+from clods_bench.splatting import fast_kernels as K, projection_kernels as PK
 from clods_bench.splatting.projection import EPS2D, FOV_CLAMP
 
 KEEP_BYTES = 1 << 30  # at most this much memory for the visits the forward keeps for the backward (else recompute)

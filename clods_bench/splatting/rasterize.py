@@ -10,7 +10,6 @@ the backend's backward on the rasterization.
 from __future__ import annotations
 
 import collections
-
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal

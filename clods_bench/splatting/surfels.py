@@ -257,8 +257,7 @@ class _SurfelRasterCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, M, means2d, depths, normals, colors, opac, boxes, width, height, near):  # noqa: D102
-        from clods_bench.splatting import fast_kernels as FK
-        from clods_bench.splatting import surfel_kernels as SK
+        from clods_bench.splatting import fast_kernels as FK, surfel_kernels as SK
 
         C, G = depths.shape
         tiles_x, tiles_y = math.ceil(width / TILE), math.ceil(height / TILE)

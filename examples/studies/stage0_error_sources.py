@@ -23,12 +23,12 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from clods_bench.benchmark.core.builders import data_splits
 from clods_bench.benchmark.clods import stage0 as S
 from clods_bench.benchmark.clods.sheet_mesh import sheet_from_points
-from clods_bench.benchmark.clods.sheet_uv import best_plane
 from clods_bench.benchmark.clods.sheet_refine import refine_sheet
+from clods_bench.benchmark.clods.sheet_uv import best_plane
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
+from clods_bench.benchmark.core.builders import data_splits
 from clods_bench.benchmark.core.config import load_config
 from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.rasterizer import render_depth

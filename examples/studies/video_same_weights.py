@@ -31,7 +31,18 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
-from video_references import KNOWN, StudyError, check_checkout, function_from_source, grad_diff, import_from, map_state, max_diff, need_file, randomize
+from video_references import (
+    KNOWN,
+    StudyError,
+    check_checkout,
+    function_from_source,
+    grad_diff,
+    import_from,
+    map_state,
+    max_diff,
+    need_file,
+    randomize,
+)
 
 from clods_bench.plugins.video.mau import MauConfig, MauPredictor
 from clods_bench.plugins.video.simvp import SimvpConfig, SimvpPredictor

@@ -11,10 +11,10 @@ from typing import Iterator
 import pytest
 
 import clods_bench.benchmark.core.registry as registry_module
-from clods_bench.cli import main
 from clods_bench.benchmark.core.registry import STRICT_ENV, default_registry
-from tests.plugin_packages import PACKAGES, install_all, module_name, run_cli
+from clods_bench.cli import main
 from tests.conftest import TINY
+from tests.plugin_packages import PACKAGES, install_all, module_name, run_cli
 
 FAILING = ["broken-import", "hook-raises", "newer-api", "wrong-type", "config-no-default", "config-no-type", "twin-b"]
 """The distributions whose warning starts with their own name (twin-b's names twin-a too)."""
@@ -60,7 +60,7 @@ def test_list_names_each_failure_once_and_lists_the_rest(fresh: Path, capsys: py
     _once_each(captured.err)
     assert "internal error" not in captured.err
     out = captured.out
-    assert "plugin API 1.1" in out and "failed plugins (left out; --strict-plugins makes this an error):" in out
+    assert "plugin API 1.2" in out and "failed plugins (left out; --strict-plugins makes this an error):" in out
     section = out.split("failed plugins")[1]
     for dist in FAILING:
         assert f"  - plugin {dist} 0.1.0 (entry point {dist} = {module_name(dist)})" in section

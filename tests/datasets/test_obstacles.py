@@ -8,6 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
+from clods_bench.datasets.obstacle_meshes import icosphere
 from clods_bench.datasets.obstacles import (
     Box,
     Capsule,
@@ -17,7 +18,6 @@ from clods_bench.datasets.obstacles import (
     TriangleMeshObstacle,
     overlap,
 )
-from clods_bench.datasets.obstacle_meshes import icosphere
 from clods_bench.errors import ClodsError
 
 

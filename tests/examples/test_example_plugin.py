@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.cli import main
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.cli import main
 from tests.conftest import TINY
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "clods-bench-example-sim"

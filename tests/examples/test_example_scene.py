@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.cli import main
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.cli import main
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import HANDLE, edges_from_cells
 from tests.conftest import TINY, tiny_config

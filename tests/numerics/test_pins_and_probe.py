@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from clods_bench import numerics as dm
-from clods_bench.cli import main
 from clods_bench.benchmark.core.determinism import check_numeric_paths, effective_paths
+from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 
 COMMITTED = json.loads((Path(__file__).parents[1] / "benchmark" / "speed" / "data" / "determinism_probe.json").read_text())

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
 from tests.conftest import tiny_config
 

@@ -226,8 +226,8 @@ def test_gsplat_backend_matches_the_reference_and_the_cpu(kind: str) -> None:
 def test_fast_backend_matches_reference_flat_dense_and_empty_tiles() -> None:
     # flat Gaussians nearly edge-on (thin slanted ellipses: the kernels' per-row chords), 150 of them crowded
     # into one tile, and tiles with nothing in them
-    from tests.splatting.test_fast_projection import _flat_edge_on_scene
     from tests.splatting.conftest import head_on_camera
+    from tests.splatting.test_fast_projection import _flat_edge_on_scene
 
     scene = _flat_edge_on_scene(250, seed=21)
     scene["means"][:150, :2] = scene["means"][:150, :2] * 0.03 - torch.tensor([0.25, 0.2], dtype=torch.float64)

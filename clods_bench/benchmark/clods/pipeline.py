@@ -16,16 +16,16 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.clods.cache import ExtractionCache
-from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.noise import initial_mesh
-from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.predict import OneStepPredictor
 from clods_bench.benchmark.clods.smooth import smooth_meshes, smoothing_tag
+from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, train_simulator
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.interfaces import Simulator
 from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse

@@ -48,7 +48,16 @@ from __future__ import annotations
 import numpy as np
 
 from clods_bench.benchmark.clods.sheet_flatten import flatten_geodesic, signed_areas
-from clods_bench.benchmark.clods.sheet_uv import ISOMAP_POINTS, PARAMETERIZATIONS, align_to_plane, best_plane, check_points, extend_uv, geodesic_uv, voxel_thin
+from clods_bench.benchmark.clods.sheet_uv import (
+    ISOMAP_POINTS,
+    PARAMETERIZATIONS,
+    align_to_plane,
+    best_plane,
+    check_points,
+    extend_uv,
+    geodesic_uv,
+    voxel_thin,
+)
 from clods_bench.datasets.cloths import validate_cloth_mesh
 from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, boundary_nodes
 from clods_bench.errors import ClodsError

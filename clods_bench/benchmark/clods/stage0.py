@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 from clods_bench.benchmark.clods.sheet_mesh import sheet_from_points, with_rest_positions
-from clods_bench.benchmark.clods.sheet_uv import PARAMETERIZATIONS
 from clods_bench.benchmark.clods.sheet_refine import RefineOptions, refine_sheet
+from clods_bench.benchmark.clods.sheet_uv import PARAMETERIZATIONS
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import ClothMesh

@@ -19,9 +19,9 @@ import numpy as np
 import torch
 
 from clods_bench.atomic import atomic_path, file_lock, write_json
+from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.cache_keys import digest
-from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.interfaces import Renderer
 from clods_bench.datasets.cameras import Camera

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.clods.config import ClodsConfig
+from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.core.interfaces import FitContext, Simulator

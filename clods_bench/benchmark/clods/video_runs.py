@@ -18,9 +18,9 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.builders import build_renderer, build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.core.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
-from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, image_scores
 from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput, VideoPredictor
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, image_scores
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.errors import ClodsError

@@ -13,10 +13,10 @@ import torch
 
 from clods_bench.atomic import file_lock
 from clods_bench.benchmark.core import stage_digests
-from clods_bench.datasets.data_config import DataConfig
 from clods_bench.benchmark.core.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.core.interfaces import FitContext, Renderer, Simulator
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError

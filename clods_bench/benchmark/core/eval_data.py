@@ -13,8 +13,8 @@ from typing import Any
 
 from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.datasets.data_config import DataConfig, data_with_overrides
-from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 WHERE = "task_config.cdg"
 

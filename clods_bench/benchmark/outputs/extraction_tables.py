@@ -9,7 +9,6 @@ import pandas as pd
 
 from clods_bench.benchmark.outputs.tables import fmt_cell
 
-
 EXTRACT_COLUMNS = (  # (metric key, column): E-GT in metres (RMSE of extracted vs true mesh, frames after the first)
     ("egt_avg", "E-GT avg (m) ↓"),
     ("egt_first_half", "E-GT 1st half"),

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from clods_bench.atomic import write_text
-from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.core.registry import Registry, default_registry
+from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.outputs.tables import layout_frames, table_layout
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError

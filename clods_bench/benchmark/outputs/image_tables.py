@@ -9,7 +9,6 @@ import pandas as pd
 
 from clods_bench.benchmark.outputs.tables import fmt_cell
 
-
 NVS_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 3 reports SSIM x10 and LPIPS x1000
     ("psnr", "PSNR (dB) ↑", 1.0, 4),
     ("ssim", "SSIM×10 ↑", 10.0, 3),

@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 
 from clods_bench.atomic import atomic_path, write_text
-from clods_bench.benchmark.running.records import iter_records, load_seed_result
 from clods_bench.benchmark.outputs.training_curves import write_training_curves
+from clods_bench.benchmark.running.records import iter_records, load_seed_result
 from clods_bench.errors import ClodsError
 
 HEADLINE = "unviewed/extrap/d_avg"

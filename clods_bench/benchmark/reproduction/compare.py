@@ -19,9 +19,9 @@ import numpy as np
 import pandas as pd
 
 from clods_bench.benchmark.core.config import read_yaml
-from clods_bench.typed_config import dataclass_from_dict
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 TOLERANCE_FILE = "tolerance.yaml"
 KEY_COLUMNS = ("method", "scene")

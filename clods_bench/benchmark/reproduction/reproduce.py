@@ -23,15 +23,15 @@ from rich.console import Console
 
 from clods_bench import numerics
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.reproduction import run_digests
 from clods_bench.benchmark.core.config import RunConfig, load_config, read_yaml
 from clods_bench.benchmark.core.descriptors import TableLayout
 from clods_bench.benchmark.core.resolve import resolve_plugins
 from clods_bench.benchmark.outputs.tables import layout_frames, scored_scenes, table_layout, write_table
-from clods_bench.typed_config import dataclass_from_dict
+from clods_bench.benchmark.reproduction import run_digests
 from clods_bench.benchmark.running.environment import git_commit, package_versions
 from clods_bench.benchmark.running.records import RECORD_FILE, restrict
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 PLAN_VERSION = 1
 MANIFEST_FILE = "manifest.json"

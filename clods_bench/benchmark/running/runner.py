@@ -14,9 +14,9 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.config import RunConfig, save_config
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.determinism import seed_everything
+from clods_bench.benchmark.core.registry import Registry
 from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
 from clods_bench.benchmark.running.records import aggregate, default_label, record_dir, reusable_seed_result, save_seed_result
-from clods_bench.benchmark.core.registry import Registry
 from clods_bench.datasets.digest import content_digest
 from clods_bench.datasets.store import DatasetStore
 

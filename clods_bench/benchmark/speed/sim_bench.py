@@ -26,11 +26,11 @@ from rich.console import Console
 from rich.table import Table
 
 from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
-from clods_bench.numerics import cpu_model
 from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.scenes import Resolution, get_scene, simulate_scene
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.numerics import cpu_model
 
 STEP_OPTIONS = ("train_steps", "steps", "num_steps", "max_steps", "iterations", "num_iterations")
 """Config fields, in order of preference, taken to be a learned simulator's number of training steps."""

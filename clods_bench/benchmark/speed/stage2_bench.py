@@ -45,11 +45,10 @@ def _time_render(renderer, verts: torch.Tensor, cams: list, repeats: int) -> flo
 def bench_stage2(preset: str = "ci", renderer_name: str = "smgs", frames: int = 6, fit_iterations: int = 60,
                  backends: tuple[str, ...] = ("cpu", "reference"), data_root: str | None = None) -> dict:  # fmt: skip
     """Time stage 2 on frames 1..`frames` of training trajectory 0 per backend; returns a dict for the CLI."""
+    from clods_bench.benchmark.core.builders import build_renderer, split_spec
     from clods_bench.benchmark.core.config import load_config
     from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.benchmark.core.registry import default_registry
-    from clods_bench.benchmark.core.builders import split_spec
-    from clods_bench.benchmark.core.builders import build_renderer
     from clods_bench.benchmark.running.run_data import ensure_dataset
 
     overrides = [f"renderer_config.{renderer_name}.iterations={fit_iterations}"] + ([f"data.root={data_root}"] if data_root else [])

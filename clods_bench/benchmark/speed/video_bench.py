@@ -21,12 +21,12 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from clods_bench.numerics import cpu_model
 from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
 from clods_bench.benchmark.core.interfaces import FitContext
 from clods_bench.benchmark.speed.sim_bench import has_option, row_name, step_option
 from clods_bench.datasets.scenes import get_scene
+from clods_bench.numerics import cpu_model
 
 NUM_VIDEOS = 2
 """Synthetic training videos per fit (windows are drawn from all of them; the count does not change a step's cost)."""

@@ -10,7 +10,6 @@ from rich.progress import Progress
 from clods_bench.benchmark.clods.labels import clods_label
 from clods_bench.benchmark.core.builders import build_simulator, data_splits, fit_on_meshes
 from clods_bench.benchmark.core.config import RunConfig
-from clods_bench.datasets.data_config import DataConfig
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.eval_data import WHERE, scored_data
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
@@ -18,6 +17,7 @@ from clods_bench.benchmark.core.interfaces import RolloutInput, check_rollout
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.scoring.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.benchmark.scoring.monitors import cloth_monitor
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory

@@ -11,8 +11,8 @@ import pytest
 from clods_bench.benchmark.clods.config import clods_config
 from clods_bench.benchmark.clods.labels import clods_label
 from clods_bench.benchmark.core.hookspecs import hookimpl
-from clods_bench.benchmark.running.records import RECORD_FILE, default_label
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE, default_label
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
@@ -114,10 +114,10 @@ def test_warm_start_hands_over_a_copy_of_the_trained_model():
 def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp_path: Path, monkeypatch):
     import torch
 
-    from clods_bench.plugins.renderers.games import GamesRenderer
     from clods_bench.benchmark.clods.pipeline import fit_stage1
     from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.datasets.store import DatasetStore
+    from clods_bench.plugins.renderers.games import GamesRenderer
 
     cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", *FAST, sim="constvel", renderer="games")
     ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path / "w", registry=default_registry())
@@ -160,10 +160,10 @@ def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_
     """Fast half of the check below: resolve_plugins accepts the name, stage 3 builds that plugin with its overrides."""
     from clods_bench.benchmark.clods.config import clods_config
     from clods_bench.benchmark.clods.stage3 import stage3_context
+    from clods_bench.benchmark.core.builders import build_simulator
     from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
     from clods_bench.benchmark.core.resolve import resolve_plugins
-    from clods_bench.benchmark.core.builders import build_simulator
 
     registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
     cfg = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="acme", renderer="smgs")

@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import start_guess
 from clods_bench.benchmark.clods.pipeline import extraction_identity
 from clods_bench.benchmark.clods.predict import OneStepPredictor
+from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.core.interfaces import RolloutInput
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError

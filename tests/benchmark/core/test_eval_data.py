@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.eval_data import cdg_config, scored_data
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.meshes import make_cylinder_mesh
 from clods_bench.datasets.store import DatasetStore

@@ -9,8 +9,8 @@ import pytest
 
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.fit_cache import FIT_CACHE_DIR, fit_cost_seconds, fit_work_dir, sim_fit_identity
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
 from tests.conftest import tiny_config
 

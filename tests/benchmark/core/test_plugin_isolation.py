@@ -74,8 +74,8 @@ def test_raising_hook_is_named_and_the_rest_loads(site: Path) -> None:
 def test_plugin_for_a_newer_api_gets_one_line(site: Path) -> None:
     reg, load, _ = _load(site, "newer-api", "good")  # good declares 1.0 and loads
     line = _only_line(load, "newer-api")
-    assert line.endswith("failed to load: it needs plugin API 2.0; this release offers plugin API 1.1 (and loads plugins "
-                         "for 1.0 to 1.1); clods-bench runs without it")  # fmt: skip
+    assert line.endswith("failed to load: it needs plugin API 2.0; this release offers plugin API 1.2 (and loads plugins "
+                         "for 1.0 to 1.2); clods-bench runs without it")  # fmt: skip
     assert "future-sim" not in reg.names("simulator") and "good-sim" in reg.names("simulator")
 
 

@@ -11,12 +11,12 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from clods_bench.cli import main
-from clods_bench.benchmark.running.run_data import ensure_complete_dataset
-from clods_bench.benchmark.outputs.html_report import build_html_report
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.outputs.html_report import build_html_report
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
+from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 from tests.benchmark.tasks.test_nvs import _run
 from tests.conftest import tiny_config

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clods_bench.cli import main
 from clods_bench.benchmark.outputs.mesh_export import export_mesh_sample, folder_name
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.cli import main
 from clods_bench.datasets.mesh_io import read_triangle_mesh
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.errors import ClodsError

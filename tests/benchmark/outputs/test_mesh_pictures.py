@@ -8,9 +8,14 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.outputs.mesh_pictures import (
-    choose_frames, face_errors, load_mesh_sample, node_errors, plot_mesh_sample, save_mesh_sample,
-)  # fmt: skip
+from clods_bench.benchmark.outputs.mesh_pictures import (  # fmt: skip
+    choose_frames,
+    face_errors,
+    load_mesh_sample,
+    node_errors,
+    plot_mesh_sample,
+    save_mesh_sample,
+)
 from clods_bench.errors import ClodsError
 
 CELLS = np.array([[0, 1, 2], [1, 3, 2]])

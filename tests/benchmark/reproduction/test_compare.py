@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.cli import main
 from clods_bench.benchmark.reproduction.compare import TOLERANCE_FILE, Tolerance, compare_dirs, load_tolerance, seed_spread
+from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 
 TOL = """\

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.cli import main
 from clods_bench.benchmark.reproduction.compare import compare_dirs
+from clods_bench.cli import main
 from tests.conftest import TINY
 
 PLAN = textwrap.dedent(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-
 import json
 import textwrap
 from pathlib import Path
@@ -13,12 +12,12 @@ import pandas as pd
 import pytest
 from rich.console import Console
 
-from clods_bench.cli import main
-from clods_bench.benchmark.running.run_data import ensure_complete_dataset
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.reproduction.reproduce import build_configs, default_plan_path, load_plan, reproduce
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.runner import run_task
+from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 from tests.conftest import TINY, tiny_config
 

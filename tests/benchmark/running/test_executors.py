@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 from rich.console import Console
 
-from clods_bench.benchmark.running.executors import LocalExecutor, make_executor
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.reproduction.reproduce import reproduce
+from clods_bench.benchmark.running.executors import LocalExecutor, make_executor
+from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.threads import MAX_THREADS_ENV, torch_threads
 from tests.benchmark.reproduction.test_reproduce import _overrides, _plan
@@ -42,7 +42,6 @@ def _threads_seen(asked: int) -> tuple[int, str | None, int, int]:
 
 def test_parallel_workers_share_the_cores() -> None:
     import os
-
     import signal
 
     before = signal.getsignal(signal.SIGTERM)

@@ -7,10 +7,10 @@ from pathlib import Path
 import yaml
 
 from clods_bench.benchmark.core.config import load_config
-from clods_bench.benchmark.running.run_data import ensure_complete_dataset
-from clods_bench.benchmark.running.records import record_dir
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.core.resolve import resolve_plugins
+from clods_bench.benchmark.running.records import record_dir
+from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig
 from tests.conftest import tiny_config

@@ -10,11 +10,11 @@ import pytest
 from rich.console import Console
 
 from clods_bench import numerics
-from clods_bench.benchmark.running.executors import LocalExecutor
-from clods_bench.benchmark.running.seed_jobs import run_configs
-from clods_bench.benchmark.running.records import seed_result_path
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.executors import LocalExecutor
+from clods_bench.benchmark.running.records import seed_result_path
 from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.running.seed_jobs import run_configs
 from clods_bench.datasets.digest import CONTENT_DIGEST_FILE, content_digest
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError

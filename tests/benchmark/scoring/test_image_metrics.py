@@ -11,10 +11,8 @@ import pytest
 import torch
 from torch import nn
 
-from clods_bench.benchmark.scoring import image_metrics as im
-from clods_bench.benchmark.scoring import lpips_weights as lw
+from clods_bench.benchmark.scoring import image_metrics as im, lpips_weights as lw
 from clods_bench.errors import ClodsError
-
 
 # ------------------------------------------------------------------ PSNR / SSIM
 

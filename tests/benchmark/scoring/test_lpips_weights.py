@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from clods_bench.benchmark.scoring import image_metrics as im
-from clods_bench.benchmark.scoring import lpips_weights as lw
+from clods_bench.benchmark.scoring import image_metrics as im, lpips_weights as lw
 from clods_bench.errors import ClodsError
 from tests.benchmark.scoring.test_image_metrics import torchvision_alexnet_features, write_alexnet
 

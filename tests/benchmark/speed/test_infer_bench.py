@@ -13,14 +13,14 @@ import pytest
 import torch
 from rich.console import Console
 
-from clods_bench.cli import main
 from clods_bench.benchmark.core.config import load_config
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
-from clods_bench.benchmark.speed.infer_bench import bench_infer, check_device
-from clods_bench.benchmark.outputs.infer_output import load_infer_results, result_rows, write_infer_outputs
-from clods_bench.benchmark.speed.infer_console import print_bench_infer
 from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.outputs.infer_output import load_infer_results, result_rows, write_infer_outputs
+from clods_bench.benchmark.speed.infer_bench import bench_infer, check_device
+from clods_bench.benchmark.speed.infer_console import print_bench_infer
+from clods_bench.cli import main
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.errors import ClodsError
 from tests.benchmark.speed.fake_clock import FakeClock
@@ -191,8 +191,8 @@ def test_outputs_accumulate_presets_and_the_report_shows_them(tmp_path: Path) ->
 def test_on_a_gpu_the_learned_step_is_timed_there_too() -> None:
     """`--device cuda` puts the learned simulator on that device (MGN has a device option), one step and no warm-up
     as on the CPU; on the CPU its config keeps the preset's device."""
-    from clods_bench.benchmark.speed.infer_bench import learned_values
     from clods_bench.benchmark.core.registry import default_registry
+    from clods_bench.benchmark.speed.infer_bench import learned_values
 
     cfg = load_config("ci", None, [])
     spec = default_registry().get("simulator", "mgn")

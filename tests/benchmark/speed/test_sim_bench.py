@@ -14,7 +14,6 @@ from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.speed.sim_bench import bench_sim
 from tests.benchmark.speed.fake_clock import FakeClock
 
-
 CLOCK = FakeClock()
 
 

@@ -16,7 +16,6 @@ from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.speed.video_bench import bench_video, synthetic_videos
 from tests.benchmark.speed.fake_clock import FakeClock
 
-
 CLOCK = FakeClock()
 
 

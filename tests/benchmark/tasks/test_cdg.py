@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.interfaces import RolloutInput
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.running.records import RECORD_FILE
-from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL, Trajectory

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.config import load_config
-from clods_bench.benchmark.running.records import RECORD_FILE, record_dir
 from clods_bench.benchmark.core.registry import default_registry
-from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.running.records import RECORD_FILE, record_dir
 from clods_bench.benchmark.running.run_data import ensure_dataset
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.generate import generate
 from clods_bench.datasets.nerf import export_nerf
 from clods_bench.datasets.store import DatasetStore
@@ -178,8 +178,8 @@ def test_dvc_from_video_alone_equals_the_meshed_run_and_its_images(imported, tin
     import torch
 
     from clods_bench.benchmark.clods.reconstructed import detect_handles
-    from clods_bench.benchmark.scoring.image_metrics import psnr
     from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
+    from clods_bench.benchmark.scoring.image_metrics import psnr
 
     fields = {"task": "dvc", "sim": "frozen", "renderer": "games"}
     extra = [*VIDEO_ONLY, "task_config.dvc.lpips=false", "task_config.dvc.sim_training=video"]

@@ -13,13 +13,13 @@ import pytest
 
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
-from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
-from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
-from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.outputs.image_tables import dvc_frame
+from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.outputs.tables import write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
 from clods_bench.benchmark.tasks.dvc import GRID_FILE
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.store import DatasetStore

@@ -13,13 +13,13 @@ import pytest
 import torch
 from torch import nn
 
-from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
 from clods_bench.benchmark.core.interfaces import FitContext
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
-from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.outputs.image_tables import dvc_multi_frame
 from clods_bench.benchmark.outputs.tables import write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
 from clods_bench.benchmark.tasks.dvc_multi import DvcMultiConfig, MultiSplit, multi_split, training_videos
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.splits import SplitSpec

@@ -9,11 +9,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import default_registry
-from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.outputs.tables import write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config

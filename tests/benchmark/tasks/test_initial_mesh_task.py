@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.builders import data_splits
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.running.records import RECORD_FILE
-from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config

@@ -14,16 +14,16 @@ import torch
 
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.outputs.tables import write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
 from clods_bench.datasets.generate import make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
-from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE
 from tests.benchmark.scoring.test_image_metrics import needs_lpips, write_alexnet
 from tests.conftest import tiny_config
 
@@ -211,8 +211,8 @@ def test_per_frame_renderer_is_fitted_on_every_frame(tiny_root: Path, tmp_path: 
 @needs_lpips
 def test_lpips_in_the_task_with_local_weights(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """On 32 px images LPIPS is computed; the constant renderer's value equals the metric applied by hand."""
-    from clods_bench.benchmark.scoring.image_metrics import load_lpips
     from clods_bench.benchmark.core.registry import default_registry
+    from clods_bench.benchmark.scoring.image_metrics import load_lpips
     from clods_bench.datasets.generate import generate
 
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "th"))

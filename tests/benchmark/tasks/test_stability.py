@@ -13,11 +13,11 @@ import pytest
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.benchmark.core.interfaces import RolloutInput
-from clods_bench.benchmark.scoring.monitors import MeshMonitor, first_failure, lumped_mass
-from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
-from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.outputs.tables import write_tables
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.scoring.monitors import MeshMonitor, first_failure, lumped_mass
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import get_scene, simulate_scene
 from clods_bench.datasets.store import DatasetStore

@@ -9,8 +9,8 @@ import torch
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.device import check_device_config, leaf_to, tensors_to
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer
-from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig, Gs3dRenderer
+from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer
 from clods_bench.splatting.gsplat_backend import gsplat_available
 
