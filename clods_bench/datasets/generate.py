@@ -181,7 +181,7 @@ def generate_trajectory(job: TrajectoryJob) -> int:
 def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool = False, executor: Any = None) -> DatasetStore:
     """Generate (or finish generating) the dataset described by `d` in `d.dataset_dir()`.
 
-    `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.executors`) generates the
+    `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.running.executors`) generates the
     missing trajectories in parallel; None generates them here, one after another.
     """
     if d.path:

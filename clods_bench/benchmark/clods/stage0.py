@@ -54,7 +54,7 @@ class Stage0Config:
     """Seed of the surfel initialisation and the hull sampling."""
     backend: str = "cpu"
     """Surfel renderer of the fit: 'cpu' (numba) or 'gsplat' (gsplat's 2DGS kernels on a CUDA GPU; depth is then
-    each surfel's centre depth, see `plugins/splatting/surfel_gsplat.py`)."""
+    each surfel's centre depth, see `splatting/surfel_gsplat.py`)."""
     sheet: str = "isomap"
     """Parameterisation of the sheet mesh (`sheet_mesh.sheet_from_points`): 'isomap' (geodesic: a flag whose free end
     curls over itself unrolls) or 'plane' (a height field over the points' best-fit plane; the layers of a curl are
