@@ -6,10 +6,18 @@ Each one exercises one way an installed plugin can go wrong; GOOD works, to show
 
 from __future__ import annotations
 
+import importlib.metadata
 import subprocess
 import sys
 import textwrap
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import pytest
+
+from clods_bench.benchmark import plugin_loading, registry
+from clods_bench.benchmark.core.plugin_loading import PluginSource
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -199,6 +207,41 @@ def install(site: Path, dist: str, source: str, version: str = "0.1.0", entry_po
 def install_all(site: Path, names: list[str] | None = None) -> None:
     for dist in names or list(PACKAGES):
         install(site, dist, PACKAGES[dist])
+
+
+DISCOVER = plugin_loading.installed_entry_points
+"""The registry's real entry-point lookup, kept before any test replaces it."""
+
+
+def own_entry_points(sites: Sequence[Path]) -> Callable[[str], list[importlib.metadata.EntryPoint]]:
+    """The registry's lookup narrowed to clods-bench's own entry points and those of distributions in `sites` (the
+    ones a test installs): a plugin installed in the environment for other reasons then cannot change its outcome."""
+    mine = {Path(site).resolve() for site in sites}
+
+    def lookup(group: str) -> list[importlib.metadata.EntryPoint]:
+        def kept(ep: importlib.metadata.EntryPoint) -> bool:
+            dist = getattr(ep, "dist", None)
+            if dist is None:
+                return False
+            if PluginSource(ep.name, dist.metadata["Name"] or "").builtin:
+                return True
+            return Path(dist.locate_file("")).resolve() in mine  # the folder holding its *.dist-info
+
+        return [ep for ep in DISCOVER(group) if kept(ep)]
+
+    return lookup
+
+
+@contextmanager
+def only_own_plugins(*sites: Path) -> Iterator[pytest.MonkeyPatch]:
+    """`sites` on sys.path and the registry seeing only their plugins and the built-ins; default_registry's cached
+    registry is put back as it was on exit, so nothing a test loads outlives it."""
+    with pytest.MonkeyPatch.context() as mp:
+        for site in sites:
+            mp.syspath_prepend(str(site))
+        mp.setattr(plugin_loading, "installed_entry_points", own_entry_points(sites))
+        mp.setattr(registry, "_DEFAULT", None)
+        yield mp
 
 
 def run_cli(site: Path, *args: str, env: dict[str, str] | None = None, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -82,6 +82,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--no-deterministic" not in argv and numerics.requested():
         numerics.pin_environment()  # first: building the parser loads the plugins, and they load numpy
+    elif not any(m in sys.modules for m in ("numpy", "torch", "numba")):
+        numerics.unpin_environment()  # host paths: pins inherited from a parent process or exported by hand go
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -11,7 +11,7 @@ from clods_bench.cli.common import console, plugin_registry
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     """Add this group's commands to the `clods-bench` parser."""
     p = sub.add_parser("bench", help="speed benchmarks (ratios against a reference measured in the same run)")
-    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer", "video", "determinism"),
+    p.add_argument("what", choices=("data", "render", "sim", "stage2", "store", "infer", "video", "determinism", "threads"),
                    help="data: cloth solver and ground-truth rasterizer; render: fast CPU splatting vs the torch reference; "
                         "sim: train/inference step time of each simulator vs the physics solver; "
                         "stage2: CloDS stage-2 ms per iteration and per frame at --preset scale, cpu vs the torch reference; "
@@ -19,7 +19,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "infer: ms per frame of CloDS (learned step + SMGS render of every view) vs the traditional pipeline "
                         "(physics solver step + ground-truth rasterizer) at --preset size; "
                         "video: training-step time of each video predictor at --preset size and its preset training time; "
-                        "determinism: deterministic mode's cost, MGN and CPU splatting against the host's own paths")  # fmt: skip
+                        "determinism: deterministic mode's cost, MGN and CPU splatting against the host's own paths; "
+                        "threads: MGN's small training step on --threads counts against the first, and whether each model "
+                        "family keeps its bits")  # fmt: skip
     p.add_argument("--preset", default="ci", help="store: the preset whose trajectory 0 is measured; stage2: preset whose data, "
                    "cameras and task_config.clods are used; infer: preset whose mesh, cameras, image size and model sizes are timed (default: ci)")  # fmt: skip
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="store, infer, video: config override, e.g. data.root=DIR or video_config.tau.hid_s=16; sim: sim_config.<name>.<field>=VALUE")
@@ -48,6 +50,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="video: time each predictor on the CPU too (--no-cpu with --device cuda: only the device rows)")
     p.add_argument("--out", type=Path, default=Path("bench"), help="infer: folder of infer_<preset>.json/.csv and infer_time.png (default bench)")
     p.add_argument("--no-progress", action="store_true", help="infer: hide the progress bar")
+    p.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="threads: thread counts per job, the first the reference (default 1 2)")
     p.set_defaults(func=cmd_bench)
 
 
@@ -55,7 +58,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     views = 8 if args.views is None else args.views
     frames = 12 if args.frames is None else args.frames
     fit_iterations = 60 if args.fit_iterations is None else args.fit_iterations
-    if args.what == "data":
+    if args.what == "threads":
+        from clods_bench.benchmark.speed.thread_bench import bench_threads
+
+        bench_threads(console, counts=args.threads, frames=8 if args.frames is None else args.frames)
+    elif args.what == "data":
         from clods_bench.benchmark.speed.bench import bench_data
 
         bench_data(console, steps=args.steps, views=views)

@@ -53,7 +53,7 @@ def cmd_numerics(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.core.determinism import effective_paths
 
     info = dm.describe()
-    console.print(f"mode: {info['mode']} (CPU: {info['cpu']}; pins version {dm.PINS_VERSION}, {dm.pinning.threads()} thread(s) per job)"
+    console.print(f"mode: {info['mode']} (CPU: {info['cpu']}; pins version {dm.PINS_VERSION}, {dm.threads()} thread(s) per job)"
                   if dm.active() else f"mode: host paths (CPU: {info['cpu']}); exact numerics are off", highlight=False)  # fmt: skip
     for key, value in sorted((info.get("pins") or {}).items()):
         console.print(f"  {key}={value}", highlight=False, markup=False)

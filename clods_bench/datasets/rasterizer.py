@@ -29,7 +29,7 @@ from clods_bench.datasets import raster_kernels as rk
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import thread_cap
+from clods_bench.numerics.thread_limits import thread_cap
 
 __all__ = ["DirectionalLight", "RasterSettings", "render", "render_views", "render_depth"]
 

@@ -32,6 +32,7 @@ from clods_bench.numerics.pinning import (
     pins,
     requested,
     threads,
+    unpin_environment,
 )
 from clods_bench.numerics.scope import ExactNumericsError, active, check, describe, exact, maybe_exact, numeric_mode
 
@@ -56,4 +57,5 @@ __all__ = [
     "pins",
     "requested",
     "threads",
+    "unpin_environment",
 ]

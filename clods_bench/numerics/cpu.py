@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
+import functools
 import platform
 
 REQUIRED_FEATURES = ("avx2", "fma", "f16c")
 """The instruction sets every pinned path uses (the AVX2 branches of ATen, oneDNN, numba, numpy and OpenBLAS)."""
 
 
+@functools.lru_cache(maxsize=1)
+def _cpuinfo() -> str | None:
+    """/proc/cpuinfo's text, read once (None where there is none)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            return fh.read()
+    except OSError:
+        return None
+
+
 def _first_processor(cpuinfo: str | None = None) -> dict[str, str] | None:
     """The fields of the first processor in /proc/cpuinfo (Linux) or in the text given; None where unreadable."""
     if cpuinfo is None:
-        try:
-            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-                cpuinfo = fh.read()
-        except OSError:
+        cpuinfo = _cpuinfo()
+        if cpuinfo is None:
             return None
     fields: dict[str, str] = {}
     for line in cpuinfo.splitlines():

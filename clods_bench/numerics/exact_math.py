@@ -17,6 +17,8 @@ from __future__ import annotations
 import warnings
 from typing import Any, Callable
 
+from clods_bench.numerics import aten_rules
+
 REPLACED = ("sqrt", "log", "tan", "asin", "acos", "atan")
 """The ATen functions whose CPU kernels deterministic mode replaces (names of `torch` functions and numpy ufuncs'
 torch names)."""
@@ -30,20 +32,37 @@ def installed() -> bool:
     return _state["library"] is not None
 
 
+def evaluate(ufunc: Callable[[Any], Any], values: Any) -> Any:
+    """numpy's `ufunc` on a contiguous array: where every replaced kernel makes its values (a test can spy on it)."""
+    return ufunc(values)
+
+
+def _result_dtype(x: Any) -> Any:
+    """The dtype ATen gives these functions' result: the input's if floating or complex, else the default float."""
+    import torch
+
+    return x.dtype if (x.dtype.is_floating_point or x.dtype.is_complex) else torch.get_default_dtype()
+
+
 def _kernel(ufunc: Callable[[Any], Any]) -> Callable[[Any], Any]:
-    """An out-of-place CPU kernel computing `ufunc` with numpy: integers promote to torch's default float dtype, as
-    ATen does; half, bfloat16 and complex-half go through float32 / complex64 and back."""
+    """An out-of-place CPU kernel computing `ufunc` with numpy: integers and bool promote to torch's default float
+    dtype, as ATen does; half, bfloat16 and complex-half go through float32 / complex64 and back. The result is laid
+    out as ATen's elementwise kernels lay it out: contiguous for a contiguous or empty input, else following the
+    input's strides (`torch.empty_like`: channels-last stays channels-last, a transposed input gives a transposed
+    result). The values are the ufunc's on a contiguous copy whatever the layout."""
     import numpy as np
     import torch
 
     wide = {torch.float16: torch.float32, torch.bfloat16: torch.float32, torch.complex32: torch.complex64}
 
     def kernel(x: torch.Tensor) -> torch.Tensor:
-        dtype = x.dtype if (x.dtype.is_floating_point or x.dtype.is_complex) else torch.get_default_dtype()
+        dtype = _result_dtype(x)
+        if x.numel() == 0:  # nothing to compute; laid out contiguously, as ATen's empty results are
+            return torch.empty(x.shape, dtype=dtype)
         target = wide.get(dtype, dtype)
         work = x if x.dtype == target else x.to(target)
         with np.errstate(all="ignore"):  # a 0-d input gives a numpy scalar: asarray keeps it 0-d
-            out = torch.from_numpy(np.asarray(ufunc(work.detach().resolve_conj().contiguous().numpy())))
+            out = torch.from_numpy(np.asarray(evaluate(ufunc, work.detach().resolve_conj().resolve_neg().contiguous().numpy())))
         out = out if out.dtype == dtype else out.to(dtype)
         if x.is_contiguous():
             return out
@@ -51,6 +70,29 @@ def _kernel(ufunc: Callable[[Any], Any]) -> Callable[[Any], Any]:
         return laid_out.copy_(out)
 
     return kernel
+
+
+def _inplace(compute: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    """The in-place form: ATen's error where the result's dtype cannot be stored in `x` (an integer or bool tensor)."""
+
+    def inplace(x: Any) -> Any:
+        aten_rules.check_cast(_result_dtype(x), x.dtype)
+        return x.copy_(compute(x))
+
+    return inplace
+
+
+def _out_form(compute: Callable[[Any], Any]) -> Callable[..., Any]:
+    """The `out=` form: ATen's error for an `out` of a dtype the result cannot be cast to; an `out` of another shape
+    resized and laid out as the out-of-place result; one of the right shape keeps its strides."""
+
+    def out_form(x: Any, *, out: Any) -> Any:
+        aten_rules.check_cast(_result_dtype(x), out.dtype)
+        value = compute(x)
+        aten_rules.resize_out(out, value.shape, value.stride())
+        return out.copy_(value)
+
+    return out_form
 
 
 def install() -> None:
@@ -66,19 +108,9 @@ def install() -> None:
         warnings.simplefilter("ignore")
         for name in REPLACED:
             compute = _kernel(getattr(np, _NUMPY_NAME[name]))
-
-            def inplace(x: torch.Tensor, _compute: Callable[[Any], Any] = compute) -> torch.Tensor:
-                return x.copy_(_compute(x))
-
-            def out_form(x: torch.Tensor, *, out: torch.Tensor, _compute: Callable[[Any], Any] = compute) -> torch.Tensor:
-                value = _compute(x)
-                if out.shape != value.shape:
-                    out.resize_(value.shape)
-                return out.copy_(value)
-
             library.impl(name, compute, "CPU")
-            library.impl(f"{name}_", inplace, "CPU")
-            library.impl(f"{name}.out", out_form, "CPU")
+            library.impl(f"{name}_", _inplace(compute), "CPU")
+            library.impl(f"{name}.out", _out_form(compute), "CPU")
     _state["library"] = library
 
 

@@ -21,6 +21,9 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
+from clods_bench.numerics import aten_rules
+from clods_bench.numerics.aten_rules import cpp_type, scalar_type
+
 REPLACED = ("mm", "addmm", "bmm", "baddbmm")
 """The ATen matrix products whose CPU kernels deterministic mode replaces."""
 
@@ -81,10 +84,13 @@ def _product(a: Any, b: Any, row: Any = None) -> Any:
 
 
 def _combine(product: Any, self: Any, beta: Any, alpha: Any, dtype: Any) -> Any:
-    """`beta * self + alpha * product` as ATen's addmm defines it (`self` ignored when beta is 0), in `dtype`."""
+    """`beta * self + alpha * product` as ATen's addmm defines it (`self` ignored when beta is 0), in `dtype`; an
+    empty result is laid out contiguously, as ATen's is (numpy gives empty arrays zero strides)."""
     import numpy as np
     import torch
 
+    if product.size == 0:
+        return torch.empty(product.shape, dtype=dtype)
     if alpha != 1:
         np.multiply(product, np.asarray(alpha, dtype=product.dtype), out=product)
     if beta != 0:
@@ -98,49 +104,114 @@ def _combine(product: Any, self: Any, beta: Any, alpha: Any, dtype: Any) -> Any:
     return out if out.dtype == dtype else out.to(dtype)
 
 
+_SUPPORTED = ("float16", "bfloat16", "float32", "float64", "complex64", "complex128", "uint8", "int8", "int16", "int32", "int64")
+"""The dtypes ATen's CPU products take (bool and complex-half raise NotImplementedError)."""
+_ATEN_KERNEL = {"mm": "addmm_impl_cpu_", "addmm": "addmm_impl_cpu_", "bmm": "bmm", "baddbmm": "baddbmm"}
+
+
 def _check(name: str, a: Any, b: Any, dims: int) -> None:
-    """ATen's shape checks, with its messages, before numpy sees the operands."""
-    if a.dim() != dims or b.dim() != dims:
-        raise RuntimeError(f"{name}: expected {dims}D tensors, but got {a.dim()}D and {b.dim()}D tensors")
-    if a.shape[-1] != b.shape[-2] or (dims == 3 and a.shape[0] != b.shape[0]):
-        raise RuntimeError(f"{name}: mat1 and mat2 shapes cannot be multiplied ({'x'.join(map(str, a.shape))} and "
-                           f"{'x'.join(map(str, b.shape))})")
+    """ATen's checks of the two factors, with its messages and error types, before numpy sees them."""
+    batched = dims == 3
+    first, second = ("batch1", "batch2") if batched else ("self" if name == "mm" else "mat1", "mat2")
+    for label, t in ((first, a), (second, b)):
+        if t.dim() != dims:
+            raise RuntimeError(f"{label} must be a 3D tensor" if batched else
+                               f"{label} must be a matrix" + ("" if name == "mm" else f", got {t.dim()}-D tensor"))  # fmt: skip
+    if batched and (a.shape[0] != b.shape[0] or a.shape[2] != b.shape[1]):
+        raise RuntimeError(f"Expected size for first two dimensions of batch2 tensor to be: [{a.shape[0]}, {a.shape[2]}] "
+                           f"but got: [{b.shape[0]}, {b.shape[1]}].")  # fmt: skip
+    if not batched and a.shape[1] != b.shape[0]:
+        raise RuntimeError(f"mat1 and mat2 shapes cannot be multiplied ({a.shape[0]}x{a.shape[1]} and {b.shape[0]}x{b.shape[1]})")
     if a.dtype != b.dtype:
-        raise RuntimeError(f"{name}: expected mat1 and mat2 to have the same dtype, but got: {a.dtype} != {b.dtype}")
+        if name == "mm":
+            raise RuntimeError(f"expected m1 and m2 to have the same dtype, but got: {cpp_type(a.dtype)} != {cpp_type(b.dtype)}")
+        if name == "addmm":
+            raise RuntimeError(f"mat1 and mat2 must have the same dtype, but got {scalar_type(a.dtype)} and {scalar_type(b.dtype)}")
+        raise RuntimeError(f"expected scalar type {scalar_type(a.dtype)} but found {scalar_type(b.dtype)}")
+
+
+def _check_out_and_dtype(name: str, dtype: Any, out: Any) -> None:
+    """After the shapes, as ATen: an `out=` tensor of another dtype refused, then a dtype its products do not take."""
+    if out is not None:
+        aten_rules.check_out_dtype(out, dtype)
+    if str(dtype).removeprefix("torch.") not in _SUPPORTED:
+        raise NotImplementedError(f'"{_ATEN_KERNEL[name]}" not implemented for \'{scalar_type(dtype)}\'')
+
+
+def _check_self(name: str, self: Any, a: Any, b: Any, beta: Any, alpha: Any) -> None:
+    """ATen's checks of addmm's and baddbmm's `self` term and scalars: `self` of the factors' dtype, broadcastable to
+    the product's shape (`expand`'s own error where not), no complex scalar for real tensors."""
+    if self.dtype != a.dtype:
+        if name == "addmm":
+            raise RuntimeError(f"self and mat2 must have the same dtype, but got {scalar_type(self.dtype)} and {scalar_type(b.dtype)}")
+        raise RuntimeError(f"Input dtypes must be the same, got: input {cpp_type(self.dtype)}, batch1: {cpp_type(a.dtype)}, "
+                           f"batch2: {cpp_type(b.dtype)}")  # fmt: skip
+    self.expand(_shape(a, b))  # a view, computing nothing: raises ATen's error where `self` does not broadcast
+    if not a.dtype.is_complex and any(isinstance(s, complex) for s in (beta, alpha)):
+        kind = "float" if a.dtype.is_floating_point else "int64_t"
+        raise RuntimeError(f"value cannot be converted to type {kind} without overflow")
+
+
+def _shape(a: Any, b: Any) -> tuple[int, ...]:
+    """The shape of `a @ b` for checked factors."""
+    return (*a.shape[:-1], b.shape[-1])
+
+
+def mm(a: Any, b: Any, *, out: Any = None) -> Any:
+    """`a @ b` for two matrices (written into `out` where given)."""
+    _check("mm", a, b, 2)
+    _check_out_and_dtype("mm", a.dtype, out)
+    return _write(out, _combine(_product(a, b), None, 0, 1, a.dtype))
+
+
+def bmm(a: Any, b: Any, *, out: Any = None) -> Any:
+    """`a @ b` for two batches of matrices (written into `out` where given)."""
+    _check("bmm", a, b, 3)
+    _check_out_and_dtype("bmm", a.dtype, out)
+    return _write(out, _combine(_product(a, b), None, 0, 1, a.dtype))
+
+
+def addmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1, out: Any = None) -> Any:
+    """`beta * self + alpha * (a @ b)`, `self` broadcast to the product's shape (written into `out` where given)."""
+    _check("addmm", a, b, 2)
+    _check_self("addmm", self, a, b, beta, alpha)
+    _check_out_and_dtype("addmm", a.dtype, out)
+    row = _bias_row(self, a, b, beta, alpha)
+    if row is not None:
+        return _write(out, _combine(_product(a, b, row), None, 0, 1, a.dtype))
+    return _write(out, _combine(_product(a, b), self, beta, alpha, a.dtype))
+
+
+def baddbmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1, out: Any = None) -> Any:
+    """`beta * self + alpha * (a @ b)` for batches of matrices (written into `out` where given)."""
+    _check("baddbmm", a, b, 3)
+    _check_self("baddbmm", self, a, b, beta, alpha)
+    _check_out_and_dtype("baddbmm", a.dtype, out)
+    return _write(out, _combine(_product(a, b), self, beta, alpha, a.dtype))
+
+
+def _inplace(product: Any) -> Any:
+    """The in-place form of addmm or baddbmm: ATen's error where `self` is not of the product's shape (it is not
+    broadcast), else the product written into `self` with `self`'s strides."""
+
+    def inplace(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
+        value = product(self, a, b, beta=beta, alpha=alpha)
+        if value.shape != self.shape:
+            raise RuntimeError(f"Bad in-place call: input tensor size {list(self.shape)} and output tensor size "
+                               f"{list(value.shape)} should match")  # fmt: skip
+        return self.copy_(value)
+
+    return inplace
 
 
 def _write(out: Any, value: Any) -> Any:
-    """Copy `value` into the `out=` tensor, resizing it as ATen's out forms do."""
-    if out.shape != value.shape:
-        out.resize_(value.shape)
+    """`value`, or where an `out=` tensor is given (its dtype checked before the product), `value` copied into it as
+    ATen's structured products do: an `out` of another shape resized (contiguous), one of the right shape keeping
+    its strides."""
+    if out is None:
+        return value
+    aten_rules.resize_out(out, value.shape)
     return out.copy_(value)
-
-
-def mm(a: Any, b: Any) -> Any:
-    """`a @ b` for two matrices."""
-    _check("mm", a, b, 2)
-    return _combine(_product(a, b), None, 0, 1, a.dtype)
-
-
-def bmm(a: Any, b: Any) -> Any:
-    """`a @ b` for two batches of matrices."""
-    _check("bmm", a, b, 3)
-    return _combine(_product(a, b), None, 0, 1, a.dtype)
-
-
-def addmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
-    """`beta * self + alpha * (a @ b)`, `self` broadcast to the product's shape."""
-    _check("addmm", a, b, 2)
-    row = _bias_row(self, a, b, beta, alpha)
-    if row is not None:
-        return _combine(_product(a, b, row), None, 0, 1, a.dtype)
-    return _combine(_product(a, b), self, beta, alpha, a.dtype)
-
-
-def baddbmm(self: Any, a: Any, b: Any, *, beta: Any = 1, alpha: Any = 1) -> Any:
-    """`beta * self + alpha * (a @ b)` for batches of matrices."""
-    _check("baddbmm", a, b, 3)
-    return _combine(_product(a, b), self, beta, alpha, a.dtype)
 
 
 def install() -> None:
@@ -153,15 +224,15 @@ def install() -> None:
     library = torch.library.Library("aten", "IMPL")
     forms = {
         "mm": mm,
-        "mm.out": lambda a, b, *, out: _write(out, mm(a, b)),
+        "mm.out": mm,
         "bmm": bmm,
-        "bmm.out": lambda a, b, *, out: _write(out, bmm(a, b)),
+        "bmm.out": bmm,
         "addmm": addmm,
-        "addmm_": lambda s, a, b, *, beta=1, alpha=1: s.copy_(addmm(s, a, b, beta=beta, alpha=alpha)),
-        "addmm.out": lambda s, a, b, *, beta=1, alpha=1, out: _write(out, addmm(s, a, b, beta=beta, alpha=alpha)),
+        "addmm_": _inplace(addmm),
+        "addmm.out": addmm,
         "baddbmm": baddbmm,
-        "baddbmm_": lambda s, a, b, *, beta=1, alpha=1: s.copy_(baddbmm(s, a, b, beta=beta, alpha=alpha)),
-        "baddbmm.out": lambda s, a, b, *, beta=1, alpha=1, out: _write(out, baddbmm(s, a, b, beta=beta, alpha=alpha)),
+        "baddbmm_": _inplace(baddbmm),
+        "baddbmm.out": baddbmm,
     }
     with warnings.catch_warnings():  # "Overriding a previously registered kernel": that is the point
         warnings.simplefilter("ignore")

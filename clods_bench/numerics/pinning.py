@@ -117,6 +117,15 @@ def pin_environment() -> list[str]:
     return list(late)
 
 
+def unpin_environment() -> None:
+    """Put back the environment from before the pins (a parent clods-bench process's, or ones exported by hand), so
+    that libraries loaded afterwards take the host's own paths: what `--no-deterministic` does in a fresh process."""
+    host = host_environ()
+    for key in [k for k in os.environ if k not in host]:
+        del os.environ[key]
+    os.environ.update(host)
+
+
 def missing_pins() -> list[str]:
     """The pinned variables that the environment lacks or holds another value for (empty when all are set)."""
     return [f"{k}={v}" for k, v in pins().items() if os.environ.get(k) != v and k != "CLODS_BENCH_MAX_THREADS"]

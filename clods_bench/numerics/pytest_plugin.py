@@ -11,8 +11,8 @@ from __future__ import annotations
 import contextlib
 from typing import Any
 
-from clods_bench.numerics import pinning as pins
-from clods_bench.numerics import scope
+import clods_bench.numerics.pinning as pins
+import clods_bench.numerics.scope as scope
 
 _session = contextlib.ExitStack()
 

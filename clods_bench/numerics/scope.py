@@ -2,8 +2,8 @@
 give the same bits on every x86-64 CPU with AVX2; on leaving it, torch is as it was.
 
 The CLI, the runner and every executor worker enter it; a library user can too (after `pin_environment()`, see
-`clods_bench.numerics`). Entering checks, once per outermost entry, what the scope cannot fix by itself: a CPU
-without AVX2/FMA/F16C, pins missing from the environment, or a numeric library loaded before them. The scope is
+`clods_bench.numerics`). Every entry checks what the scope cannot fix by itself: a CPU without AVX2/FMA/F16C, pins
+missing from the environment, or a numeric library loaded before them. The scope is
 process-wide (torch's dispatch table is), re-entrant, and counts its entries: the kernels leave with the last exit.
 """
 
@@ -14,8 +14,8 @@ import threading
 from typing import Any, Iterator
 
 from clods_bench.errors import ClodsError
-from clods_bench.numerics import cpu
-from clods_bench.numerics import pinning as pins
+import clods_bench.numerics.cpu as cpu
+import clods_bench.numerics.pinning as pins
 
 _lock = threading.RLock()
 _state: dict[str, Any] = {"depth": 0, "restore": None}
@@ -73,10 +73,22 @@ def active() -> bool:
     return _state["depth"] > 0
 
 
+def _set_mkldnn_deterministic(value: bool) -> None:
+    """Set oneDNN's deterministic flag, also after `torch.backends.disable_global_flags()` (which importing torch's
+    test utilities calls, and which makes a bare assignment raise): the same flag either way."""
+    import torch
+
+    setter = getattr(torch._C, "_set_mkldnn_deterministic", None)
+    if setter is None:  # pragma: no cover - a torch without the binding
+        torch.backends.mkldnn.deterministic = value
+    else:
+        setter(value)
+
+
 def _enter() -> None:
     with _lock:
+        check()  # at every entry: a nested scope in a process that lost its footing says so too
         if _state["depth"] == 0:
-            check()
             import torch
 
             from clods_bench.numerics import exact_math, exact_matmul
@@ -86,7 +98,7 @@ def _enter() -> None:
             exact_matmul.install()
             torch.set_num_threads(pins.threads())
             if restore["mkldnn"] is not None:
-                torch.backends.mkldnn.deterministic = True  # oneDNN's reductions in a fixed order whatever the threads
+                _set_mkldnn_deterministic(True)  # oneDNN's reductions in a fixed order whatever the threads
             _state["restore"] = restore
         _state["depth"] += 1
 
@@ -107,7 +119,7 @@ def _exit() -> None:
             if restore.get("threads"):
                 torch.set_num_threads(restore["threads"])
             if restore.get("mkldnn") is not None:
-                torch.backends.mkldnn.deterministic = restore["mkldnn"]
+                _set_mkldnn_deterministic(restore["mkldnn"])
             _state["restore"] = None
 
 

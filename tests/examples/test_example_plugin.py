@@ -14,13 +14,14 @@ import pytest
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.cli import main
 from tests.conftest import TINY
+from tests.plugin_packages import only_own_plugins
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "clods-bench-example-sim"
 
 
 @pytest.fixture(scope="module")
 def installed_example(tmp_path_factory: pytest.TempPathFactory):
-    """`pip install --target` the example (a copy, so the checkout stays clean) and put the target on sys.path."""
+    """`pip install --target` the example (a copy: the checkout stays clean); the registry sees it and the built-ins only."""
     tmp_path = tmp_path_factory.mktemp("example")
     src = tmp_path / "src"
     shutil.copytree(EXAMPLE, src)
@@ -29,14 +30,12 @@ def installed_example(tmp_path_factory: pytest.TempPathFactory):
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert (site / "clods_bench_example_sim-0.1.0.dist-info" / "entry_points.txt").is_file()
-    with pytest.MonkeyPatch.context() as mp:
-        mp.syspath_prepend(str(site))
+    with only_own_plugins(site):  # no other installed plugin can change the outcome; the cached registry restored after
         try:
             yield default_registry(refresh=True)
         finally:
             for name in [m for m in sys.modules if m.startswith("clods_bench_example_sim")]:
                 sys.modules.pop(name)
-    default_registry(refresh=True)
 
 
 def test_example_plugin_runs_through_the_cli_and_appears_in_tables(tmp_path: Path, tiny_root: Path, installed_example) -> None:

@@ -17,6 +17,7 @@ from clods_bench.cli import main
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import HANDLE, edges_from_cells
 from tests.conftest import TINY, tiny_config
+from tests.plugin_packages import only_own_plugins
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "clods-bench-example-scene"
 
@@ -32,14 +33,12 @@ def installed_scene(tmp_path_factory: pytest.TempPathFactory):
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert (site / "clods_bench_example_scene" / "banner.obj").is_file()  # package data travels with it
-    with pytest.MonkeyPatch.context() as mp:
-        mp.syspath_prepend(str(site))
+    with only_own_plugins(site):  # no other installed plugin can change the outcome; the cached registry restored after
         try:
             yield default_registry(refresh=True)
         finally:
             for name in [m for m in sys.modules if m.startswith("clods_bench_example_scene")]:
                 sys.modules.pop(name)
-    default_registry(refresh=True)
 
 
 def test_example_scene_generates_data_and_runs_cdg(tmp_path: Path, installed_scene) -> None:

@@ -1,11 +1,12 @@
-"""The kernels deterministic mode puts under torch's mm, addmm, bmm and baddbmm: `fma_gemm`'s k-ordered chains of
+"""The kernels `numerics.exact()` puts under torch's mm, addmm, bmm and baddbmm: `fma_gemm`'s k-ordered chains of
 fused multiply-adds.
 
-The test session runs in deterministic mode (`tests/test_deterministic_mode.py` asserts it), so torch's products here
-are the replacements. References: `fma_gemm.matmul` on the same values (the same bits, every form and layout; it is
-checked against exact arithmetic in `tests/test_fma_gemm.py`), `math.fsum` of the products (correctly rounded sums),
-autograd's gradients against finite differences, and fresh interpreters for what the host's environment may not
-change.
+The test session runs inside `numerics.exact()` (`clods_bench.numerics.pytest_plugin`), so torch's products here are
+the replacements. References: `fma_gemm.matmul` on the same values (the same bits, every form and layout; it is
+checked against exact arithmetic in `test_fma_gemm.py`), torch's own products computed outside the scope in a fresh
+interpreter (which round differently at k >= 1000, so a bypassed replacement fails here), a spy on `fma_gemm.matmul`,
+`math.fsum` of the products (correctly rounded sums), autograd's gradients against finite differences, and fresh
+interpreters for what the host's environment may not change (`test_aten_semantics.py` checks ATen's semantics).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 import os
 import subprocess
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,16 +23,20 @@ import torch
 
 from clods_bench import numerics as dm
 from clods_bench.numerics import exact_matmul, fma_gemm
+from clods_bench.numerics.pinning import BEFORE_PINS_ENV
+from tests.numerics import aten_reference
 
 _G = torch.Generator().manual_seed(11)
+K = 1031
+"""An inner dimension where MKL's blocked sums and one k-ordered chain of fused multiply-adds round differently."""
 
 
-def _randn(*shape: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    return torch.randn(*shape, generator=_G, dtype=dtype)
+def _randn(*shape: int, dtype: torch.dtype = torch.float32, generator: torch.Generator = _G) -> torch.Tensor:
+    return torch.randn(*shape, generator=generator, dtype=dtype)
 
 
 def test_installed_and_described() -> None:
-    assert exact_matmul.installed()
+    assert dm.active() and exact_matmul.installed()
     assert dm.describe()["exact_matmul"] == list(exact_matmul.REPLACED)
 
 
@@ -43,20 +49,70 @@ def _layouts(t: torch.Tensor) -> dict[str, torch.Tensor]:
     return out
 
 
+@pytest.fixture(scope="module")
+def host_products() -> dict[torch.dtype, dict[str, Any]]:
+    """Per dtype: factors with k = K, and torch's own mm, bmm and addmm of them computed outside the exact scope (one
+    fresh interpreter for all)."""
+    g = torch.Generator().manual_seed(29)
+    inputs = {dtype: {"mm": [_randn(37, K, dtype=dtype, generator=g), _randn(K, 18, dtype=dtype, generator=g)],
+                      "bmm": [_randn(3, 9, K, dtype=dtype, generator=g), _randn(3, K, 4, dtype=dtype, generator=g)],
+                      "addmm": [_randn(18, dtype=dtype, generator=g)]} for dtype in (torch.float32, torch.float64)}  # fmt: skip
+    for case in inputs.values():
+        case["addmm"] += case["mm"]
+    cases = [{"kind": "call", "name": name, "form": "function", "args": args, "kwargs": {}}
+             for case in inputs.values() for name, args in case.items()]  # fmt: skip
+    records = iter(aten_reference.reference(cases))
+    return {dtype: {name: (args, next(records)["result"]["value"]) for name, args in case.items()} for dtype, case in inputs.items()}
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_mm_and_bmm_give_fma_gemms_bits_in_every_layout(dtype: torch.dtype) -> None:
-    a, b = _randn(37, 129, dtype=dtype), _randn(129, 18, dtype=dtype)
-    want = fma_gemm.matmul(a.numpy(), b.numpy())
-    assert not np.array_equal(want, np.matmul(a.numpy(), b.numpy()))  # not a BLAS's bits: the test can tell
+def test_mm_and_bmm_give_fma_gemms_bits_in_every_layout(dtype: torch.dtype, host_products: dict[torch.dtype, Any]) -> None:
+    """Bit for bit `fma_gemm`'s, and not the bits torch gives outside the scope: a bypassed kernel fails here."""
+    (a, b), host = host_products[dtype]["mm"]
+    want = torch.from_numpy(fma_gemm.matmul(a.numpy(), b.numpy()))
+    assert not torch.equal(want, host)  # torch's own product rounds otherwise: the test can tell
+    bound = 2 * K * torch.finfo(dtype).eps * (a.abs() @ b.abs())  # two sums each within K eps sum|terms| of exact
+    assert bool(((want - host).abs() <= bound).all())  # ... by rounding only
     for name_a, la in _layouts(a).items():
         for name_b, lb in _layouts(b).items():
-            assert torch.equal(torch.mm(la, lb), torch.from_numpy(want)), (name_a, name_b)
-    x, y = _randn(3, 9, 65, dtype=dtype), _randn(3, 65, 4, dtype=dtype)
+            assert torch.equal(torch.mm(la, lb), want), (name_a, name_b)
+    (x, y), host3 = host_products[dtype]["bmm"]
     batched = torch.from_numpy(fma_gemm.matmul(x.numpy(), y.numpy()))
+    assert not torch.equal(batched, host3)
     assert torch.equal(torch.bmm(x, y), batched)
     assert torch.equal(torch.bmm(x.transpose(1, 2).contiguous().transpose(1, 2), y), batched)
     assert torch.equal(torch.matmul(x, y), batched)
     assert torch.equal(torch.einsum("bij,bjk->bik", x, y), batched)
+    (bias, a, b), host_linear = host_products[dtype]["addmm"]
+    linear = torch.from_numpy(fma_gemm.matmul(a.numpy(), b.numpy(), bias.numpy()))
+    assert not torch.equal(linear, host_linear)
+    assert torch.equal(torch.nn.functional.linear(a, b.t(), bias), linear)  # nn.Linear's route: addmm with a bias row
+
+
+def test_mm_bmm_and_linear_forward_and_backward_reach_fma_gemm(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A spy on `fma_gemm.matmul`: torch.mm, nn.Linear's forward (addmm) and backward (mm for both gradients) and a
+    bmm each call it, with the factors' shapes."""
+    calls: list[tuple[tuple[int, ...], tuple[int, ...]]] = []
+    real = fma_gemm.matmul
+
+    def spy(a: np.ndarray, b: np.ndarray, *args: Any, **kwargs: Any) -> np.ndarray:
+        calls.append((a.shape, b.shape))
+        return real(a, b, *args, **kwargs)
+
+    monkeypatch.setattr(fma_gemm, "matmul", spy)
+    torch.mm(_randn(5, 7), _randn(7, 3))
+    assert calls == [((5, 7), (7, 3))]
+    layer = torch.nn.Linear(16, 8)
+    x = _randn(4, 16).requires_grad_()
+    calls.clear()
+    y = layer(x)
+    assert calls == [((4, 16), (16, 8))]
+    calls.clear()
+    (y * _randn(4, 8)).sum().backward()
+    assert sorted(calls) == sorted([((4, 8), (8, 16)), ((8, 4), (4, 16))])  # grad of x, grad of the weight
+    calls.clear()
+    torch.bmm(_randn(2, 3, 5), _randn(2, 5, 4))
+    assert calls == [((2, 3, 5), (2, 5, 4))]
 
 
 def test_products_are_sums_of_products_to_a_few_ulps() -> None:
@@ -92,7 +148,8 @@ def test_addmm_and_baddbmm_forms_follow_atens_definition() -> None:
     assert torch.equal(torch.baddbmm(base, x, y, alpha=3.0), torch.from_numpy(want3))
     assert torch.equal(base.clone().baddbmm_(x, y, alpha=3.0), torch.from_numpy(want3))
     out3 = torch.empty(1)
-    torch.bmm(x, y, out=out3)
+    with pytest.warns(UserWarning, match="An output with one or more elements was resized"):  # as ATen warns
+        torch.bmm(x, y, out=out3)
     assert torch.equal(out3, torch.from_numpy(fma_gemm.matmul(x.numpy(), y.numpy())))
 
 
@@ -125,20 +182,27 @@ def test_other_dtypes_and_empty_products() -> None:
 
 
 def test_bad_shapes_and_dtypes_raise_atens_error() -> None:
+    """ATen's messages (`test_aten_semantics` compares every error's type with ATen's in a fresh interpreter)."""
     with pytest.raises(RuntimeError, match=r"cannot be multiplied \(3x4 and 5x6\)"):
         torch.mm(_randn(3, 4), _randn(5, 6))
-    with pytest.raises(RuntimeError, match="same dtype"):
+    with pytest.raises(RuntimeError, match="expected m1 and m2 to have the same dtype, but got: float != double"):
         torch.mm(_randn(3, 4), _randn(4, 2, dtype=torch.float64))
-    with pytest.raises(RuntimeError, match="expected 3D tensors"):
+    with pytest.raises(RuntimeError, match="batch1 must be a 3D tensor"):
         torch.bmm(_randn(3, 4), _randn(4, 2))
+    with pytest.raises(RuntimeError, match="Expected out tensor to have dtype float, but got double instead"):
+        torch.mm(_randn(3, 4), _randn(4, 2), out=torch.empty(0, dtype=torch.float64))
+    with pytest.raises(NotImplementedError, match="not implemented for 'Bool'"):
+        torch.mm(torch.ones(2, 2, dtype=torch.bool), torch.ones(2, 2, dtype=torch.bool))
 
 
 def _product_digest(**env: str) -> str:
-    code = ("import clods_bench, torch, hashlib\ng = torch.Generator().manual_seed(0)\n"
-            "a, b = torch.randn(300, 257, generator=g), torch.randn(257, 129, generator=g)\n"
-            "print(hashlib.sha256(torch.nn.functional.linear(a, b.t(), b[0, :129]).numpy().tobytes()).hexdigest()[:16])")  # fmt: skip
-    full = {k: v for k, v in os.environ.items() if k not in (dm.SWITCH_ENV, dm.BEFORE_PINS_ENV)} | env
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=full, timeout=300)
+    """The digest of an nn.Linear product inside `numerics.exact()` in a fresh interpreter with `env` added."""
+    code = ("from clods_bench import numerics\nnumerics.pin_environment()\nimport torch, hashlib\n"
+            "g = torch.Generator().manual_seed(0)\na, b = torch.randn(300, 257, generator=g), torch.randn(257, 129, generator=g)\n"
+            "with numerics.exact():\n"
+            "    print(hashlib.sha256(torch.nn.functional.linear(a, b.t(), b[0, :129]).numpy().tobytes()).hexdigest()[:16])")  # fmt: skip
+    full = {k: v for k, v in os.environ.items() if k not in (dm.SWITCH_ENV, BEFORE_PINS_ENV)} | env
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=full, timeout=300, cwd=aten_reference.ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
     return out.stdout.strip().splitlines()[-1]
 

@@ -1,5 +1,5 @@
-"""Deterministic mode: the pins are in effect in this test session, four tiny fits (one per model family) give the
-committed bits on every x86-64 CPU with AVX2, and the mode's errors and switches say what is wrong in one line."""
+"""The pins and the probe: the pins are in effect in this test session, four tiny fits (one per model family) give
+the committed bits on every x86-64 CPU with AVX2, and the CLI's errors and switches say what is wrong in one line."""
 
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 
 from clods_bench import numerics as dm
-from clods_bench.benchmark.core.determinism import check_numeric_paths, effective_paths
 from clods_bench.cli import main
+from clods_bench.benchmark.core.determinism import effective_paths
+from clods_bench.numerics import cpu, scope
 from clods_bench.errors import ClodsError
 
 COMMITTED = json.loads((Path(__file__).parents[1] / "benchmark" / "speed" / "data" / "determinism_probe.json").read_text())
@@ -22,8 +23,8 @@ X86_AVX2 = not dm.missing_cpu_features()
 
 
 def test_the_test_session_runs_on_the_pinned_paths() -> None:
-    """pytest loads clods_bench first (`-p clods_bench`): no numeric library escaped the pins."""
-    assert dm.requested() and dm.loaded_too_early() == []
+    """The numerics pytest plugin pins first and runs the session in the exact scope, as the CLI runs a command."""
+    assert dm.requested() and dm.active() and dm.loaded_too_early() == [] and dm.missing_pins() == []
     paths = effective_paths()
     assert paths["mkl_cbwr"] == "COMPATIBLE" and paths["onednn_max_isa"] == "AVX2" and paths["torch_threads"] == 1
     if X86_AVX2:
@@ -45,29 +46,43 @@ def test_each_model_family_gives_the_committed_bits(family: str) -> None:
 
 
 def test_a_cpu_without_avx2_gets_one_line_and_exit_2(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2", "fma"])
+    monkeypatch.setattr(cpu, "missing_cpu_features", lambda: ["avx2", "fma"])
     assert main(["run", "cdg", "--sim", "constvel", "--set", f"runs_dir={tmp_path}"]) == 2
     err = capsys.readouterr().err
-    assert "deterministic mode pins AVX2 code paths, and this CPU" in err and "lacks avx2, fma" in err and "--no-deterministic" in err
+    assert "exact numerics pin AVX2 code paths, and this CPU" in err and "lacks avx2, fma" in err and "--no-deterministic" in err
+    assert len(err.strip().splitlines()) <= 3  # one message (rich wraps long lines)
     assert main(["list"]) == 0  # commands that compute nothing still work
+    with pytest.raises(dm.ExactNumericsError, match="lacks avx2, fma"):  # the library's typed error
+        with dm.exact():
+            pass
 
 
-def test_numpy_imported_before_clods_bench_is_named(tmp_path: Path) -> None:
-    code = "import numpy, clods_bench\nfrom clods_bench.benchmark.core.determinism import check_numeric_paths\ncheck_numeric_paths()"
+def test_numpy_imported_before_the_pins_is_named(tmp_path: Path) -> None:
+    code = "import numpy\nfrom clods_bench import numerics\nnumerics.pin_environment()\nwith numerics.exact():\n    pass"
     env = {k: v for k, v in os.environ.items() if k not in dm.pins()}  # a fresh process: nothing pinned beforehand
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
-    assert out.returncode != 0 and "numpy loaded before clods_bench, so deterministic mode could not pin its floating-point paths" in out.stderr
+    assert out.returncode != 0 and "ExactNumericsError" in out.stderr
+    assert "numpy loaded before the pins were set, so its floating-point paths are the host's" in out.stderr
+    assert "call clods_bench.numerics.pin_environment() before importing numpy" in out.stderr
     env.update(dm.pins())  # the variables of `clods-bench numerics --export`, set before Python starts: fine
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path).returncode == 0
 
 
-def test_no_deterministic_reruns_the_command_on_the_host_paths() -> None:
+def test_the_scope_refuses_without_the_pins(tmp_path: Path) -> None:
+    code = "from clods_bench import numerics\nimport torch\nwith numerics.exact():\n    pass"
+    env = {k: v for k, v in os.environ.items() if k not in dm.pins()}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert out.returncode != 0 and "the numeric libraries' pins are not in the environment" in out.stderr
+
+
+def test_no_deterministic_is_a_plain_flag_on_the_host_paths() -> None:
+    """In a fresh process the flag undoes even pins inherited from this (pinned) test session, before numpy loads."""
     exe = shutil.which("clods-bench", path=str(Path(sys.executable).parent)) or "clods-bench"
     out = subprocess.run([exe, "--no-deterministic", "numerics"], capture_output=True, text=True)
     assert out.returncode == 0 and "mode: host paths" in out.stdout.replace("\n", " ")
-    assert "mkl_cbwr=host" in out.stdout.replace("\n", "")
+    assert "mkl_cbwr=host" in out.stdout.replace("\n", "") and "torch_products_on_fma_gemm=[]" in out.stdout.replace("\n", "")
     env = dm.host_environ()  # the environment from before the pins, with the switch off
-    assert env[dm.SWITCH_ENV] == "0" and env.get("MKL_CBWR") == dm._original.get("MKL_CBWR")
+    assert env[dm.SWITCH_ENV] == "0" and "MKL_CBWR" not in env or env["MKL_CBWR"] != "COMPATIBLE"
 
 
 def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -79,20 +94,16 @@ def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.Monke
     cfg = tiny_config(Path("/tmp/x"), sim="constvel")
     registry = default_registry()
     pinned = (record_dir(cfg, registry), digest({"a": 1}))
-    monkeypatch.setenv(dm.SWITCH_ENV, "0")
+    monkeypatch.setitem(scope._state, "depth", 0)  # as outside the scope
+    assert dm.numeric_mode() == "host"
     assert record_dir(cfg, registry) != pinned[0] and digest({"a": 1}) != pinned[1]
-    monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2"])
-    check_numeric_paths()  # host mode needs nothing of the CPU
-    monkeypatch.setenv(dm.SWITCH_ENV, "1")
-    with pytest.raises(ClodsError, match="lacks avx2"):
-        check_numeric_paths()
 
 
 def test_a_cpu_without_avx2_keeps_openblass_own_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
     """Haswell's kernel on such a CPU stops numpy's import with an illegal instruction (seen under QEMU's Nehalem),
     before the run could name the missing feature; so the pin is left out there."""
     assert dm.pins()["OPENBLAS_CORETYPE"] == "Haswell" or not X86_AVX2
-    monkeypatch.setattr(dm, "missing_cpu_features", lambda: ["avx2"])
+    monkeypatch.setattr(dm.pinning, "missing_cpu_features", lambda: ["avx2"])
     assert "OPENBLAS_CORETYPE" not in dm.pins()
 
 
@@ -123,7 +134,8 @@ def test_emulated_intel_and_amd_cpus_give_the_committed_bits(cpu: str) -> None:
     instruction set, and under the pins all take the same arithmetic. QEMU computes IEEE arithmetic exactly and the
     CPU's approximate instructions its own way, so this also shows that no pinned path depends on those (before
     `exact_math`, MKL's vector sqrt did: see the file's `before_exact_math`)."""
-    code = "import clods_bench, json\nfrom clods_bench.benchmark.speed.determinism_probe import probe\nprint(json.dumps({k: v['digest'] for k, v in probe().items()}))"
+    code = ("from clods_bench import numerics\nnumerics.pin_environment()\nimport json\nfrom clods_bench.benchmark.speed.determinism_probe import probe\n"
+            "print(json.dumps({k: v['digest'] for k, v in probe().items()}))")
     out = subprocess.run(["qemu-x86_64", "-cpu", cpu, sys.executable, "-c", code], capture_output=True, text=True, timeout=3000)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == COMMITTED["digests"]

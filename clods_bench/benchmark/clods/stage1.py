@@ -27,7 +27,7 @@ from clods_bench.benchmark.core.interfaces import Renderer
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 
 
 def cache_root(ctx: TaskContext, opts: ClodsConfig) -> Path:

@@ -159,9 +159,18 @@ _IMPORT_NOTICES: dict[PluginSource, list[PluginNotice]] = {}
 """The deprecation notices each entry point's import raised, for registries built again in the same process."""
 
 
+def installed_entry_points(group: str = ENTRY_POINT_GROUP) -> list[importlib.metadata.EntryPoint]:
+    """The entry points of `group` that the installed distributions declare: the one place plugins are discovered.
+
+    Looked up by name at each load, so a test can replace it (say, to see only clods-bench's own entry points and
+    those of the plugins it installs, whatever else is installed); users never need to.
+    """
+    return list(importlib.metadata.entry_points(group=group))
+
+
 def load_entry_points(pm: ClodsPluginManager, group: str = ENTRY_POINT_GROUP) -> None:
     """Load every entry point of `group` on its own; each one that fails is recorded in `pm.failures` and skipped."""
-    sources = sorted(((_source(ep), ep) for ep in importlib.metadata.entry_points(group=group)),
+    sources = sorted(((_source(ep), ep) for ep in installed_entry_points(group)),
                      key=lambda s: (not s[0].builtin, _normalized(s[0].distribution), s[0].name))  # fmt: skip
     for source, ep in sources:
         if pm.has_plugin(source.name):  # two packages' entry points of one name (say, "plugin"): both load

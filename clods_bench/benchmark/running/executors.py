@@ -22,7 +22,7 @@ from rich.progress import Progress
 
 from clods_bench import numerics
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import MAX_THREADS_ENV
+from clods_bench.numerics.thread_limits import MAX_THREADS_ENV
 
 ExecutorName = Literal["local", "ray"]
 EXECUTORS: tuple[str, ...] = ("local", "ray")
@@ -83,13 +83,13 @@ def worker_threads(jobs: int) -> int:
     """Threads of each of `jobs` parallel workers: deterministic mode's fixed count (the numbers depend on it), else
     the cores shared out, max(1, cores // jobs)."""
     if numerics.requested():
-        return numerics.pinning.threads()  # the package attribute `threads` is also its submodule of that name
+        return numerics.threads()
     return max(1, (os.cpu_count() or 1) // int(jobs))
 
 
 def _init_worker(threads: int, parent: int | None = None) -> None:
     """Start of a parallel worker process: die with its parent (`_die_with_parent`), cap torch's threads (every later
-    setting too, see `clods_bench.numerics.threads`) and numba's parallel kernels (the splatting backend) at `threads`."""
+    setting too, see `clods_bench.numerics.thread_limits`) and numba's parallel kernels (the splatting backend) at `threads`."""
     if parent is not None:
         _die_with_parent(parent)
     os.environ[MAX_THREADS_ENV] = str(threads)

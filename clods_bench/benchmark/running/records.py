@@ -96,9 +96,9 @@ def reusable_seed_result(rdir: Path, seed: int, data_digests: Sequence[str] | No
     if data_digests is not None and isinstance(had, list) and list(had) != list(data_digests):
         raise ClodsError(f"seed {seed}'s result was made from other data (dataset content {', '.join(map(str, had))}, now "
                          f"{', '.join(data_digests)}): the data generator or the dataset changed since", where=str(path), hint=hint)  # fmt: skip
-    recorded, now = done.get("numerics"), numerics.describe()
-    if isinstance(recorded, dict) and recorded.get("mode") == now.get("mode") == "deterministic":
-        was, current = recorded.get("pins_version"), now.get("pins_version")
+    made, now = done.get("numerics"), numerics.describe()
+    if isinstance(made, dict) and made.get("mode") == now.get("mode") == "deterministic":
+        was, current = made.get("pins_version"), now.get("pins_version")
         if was is not None and was != current:
             raise ClodsError(f"seed {seed}'s result was computed under numeric pins version {was}; this release computes with "
                              f"version {current}, so a rerun gives other numbers", where=str(path), hint=hint)  # fmt: skip

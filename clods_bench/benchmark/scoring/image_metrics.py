@@ -55,7 +55,8 @@ def psnr(pred: Any, gt: Any) -> float:
 
 
 def ssim(pred: Any, gt: Any) -> float:
-    """SSIM of Wang et al. 2004 (11x11 Gaussian window, sigma 1.5, data range 1), mean over pixels and channels."""
+    """SSIM of Wang et al. 2004 (11x11 Gaussian window, sigma 1.5, K1 0.01, K2 0.03, data range 1, population
+    covariance, float64): the mean over the window positions wholly inside the image, then over the 3 channels."""
     a, b = _pair(pred, gt, "ssim")
     if min(a.shape[:2]) < 11:
         raise ClodsError(f"image {a.shape[0]}x{a.shape[1]} is smaller than SSIM's 11x11 window", where="ssim")

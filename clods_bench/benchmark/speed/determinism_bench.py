@@ -23,12 +23,15 @@ from clods_bench.errors import ClodsError
 
 _CHILD = """
 import json, sys
-import clods_bench
+from clods_bench import numerics
+if numerics.requested():
+    numerics.pin_environment()
 from rich.console import Console
 from clods_bench.benchmark.speed.sim_bench import bench_sim
 from clods_bench.splatting.bench import bench_render
-sim = bench_sim(Console(quiet=True), sims=["mgn", "physics"], frames=int(sys.argv[1]))["mgn"]
-render = bench_render(repeats=int(sys.argv[2]), memory=False, reference=False)["cpu"]
+with numerics.maybe_exact():
+    sim = bench_sim(Console(quiet=True), sims=["mgn", "physics"], frames=int(sys.argv[1]))["mgn"]
+    render = bench_render(repeats=int(sys.argv[2]), memory=False, reference=False)["cpu"]
 print("RESULT " + json.dumps({"sim train s/step": sim.train_s_per_step, "sim infer ms/step": sim.infer_ms_per_step,
                               "render forward ms": render["forward_ms"], "render forward+backward ms": render["forward_backward_ms"]}))
 """
@@ -38,7 +41,7 @@ def _child_env(deterministic: bool) -> dict[str, str]:
     """The environment of one mode's child, both at deterministic mode's thread count."""
     env = dict(os.environ) if deterministic else dm.host_environ()
     env[dm.SWITCH_ENV] = "1" if deterministic else "0"
-    n = str(dm.pinning.threads())
+    n = str(dm.threads())
     for key in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS", "CLODS_BENCH_MAX_THREADS"):
         env[key] = n
     return env
@@ -63,7 +66,7 @@ def bench_determinism(console: Console, rounds: int = 2, frames: int = 8, repeat
             for key, value in got.items():
                 best[deterministic][key] = min(value, best[deterministic].get(key, float("inf")))
     result = {k: {"host": best[False][k], "deterministic": best[True][k], "ratio": best[True][k] / best[False][k]} for k in best[True]}
-    table = Table(title=f"deterministic mode against the host's own paths ({dm.cpu_model()}, {dm.pinning.threads()} thread(s), best of {rounds})")
+    table = Table(title=f"deterministic mode against the host's own paths ({dm.cpu_model()}, {dm.threads()} thread(s), best of {rounds})")
     for col in ("measure", "host paths", "deterministic", "deterministic / host"):
         table.add_column(col, justify="left" if col == "measure" else "right")
     for key, v in result.items():

@@ -35,7 +35,7 @@ from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.scenes import simulate_scene
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import thread_cap
+from clods_bench.numerics.thread_limits import thread_cap
 
 if TYPE_CHECKING:
     from clods_bench.benchmark.core.config import RunConfig

@@ -23,7 +23,7 @@ import torch
 from clods_bench.benchmark.clods.config import clods_config
 from clods_bench.benchmark.clods.extract import MeshPrior, fit_frame, start_guess
 from clods_bench.datasets.types import NORMAL
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 
 if TYPE_CHECKING:
     from rich.console import Console

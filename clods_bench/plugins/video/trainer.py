@@ -30,7 +30,7 @@ from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.core.interfaces import FitContext, check_video
 from clods_bench.devices import check_device_name, torch_device
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 
 CHECKPOINT_FORMAT = 1
 

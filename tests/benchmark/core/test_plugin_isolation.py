@@ -14,17 +14,18 @@ from clods_bench.api_version import PluginAPIDeprecationWarning
 from clods_bench.benchmark.core.registry import STRICT_ENV, PluginLoadWarning, Registry, default_registry, make_plugin_manager
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.errors import ClodsError
-from tests.plugin_packages import install, install_all, module_name
+from tests.plugin_packages import install, install_all, module_name, only_own_plugins
 
 
 @pytest.fixture
 def site(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
-    """An empty 'site-packages' on sys.path; the plugin modules imported from it are forgotten afterwards."""
+    """An empty 'site-packages' on sys.path whose plugins the registry sees besides the built-ins (and no other
+    installed plugin, which could change the outcome); the plugin modules imported from it are forgotten afterwards."""
     monkeypatch.delenv(STRICT_ENV, raising=False)
     path = tmp_path / "site"
     path.mkdir()
-    monkeypatch.syspath_prepend(str(path))
-    yield path
+    with only_own_plugins(path):
+        yield path
     for name in [m for m in sys.modules if m.startswith("cbt_")]:
         sys.modules.pop(name)
 
@@ -50,7 +51,7 @@ def _builtins_intact(reg: Registry) -> None:
     assert {"flag", "cylinder"} <= set(reg.names("scene")) and "cdg" in reg.names("task")
 
 
-def test_builtins_load_without_problems() -> None:
+def test_builtins_load_without_problems(site: Path) -> None:
     reg = default_registry(refresh=True)
     assert reg.failures == [] and reg.notices == []
     assert reg.sources["simulators"].builtin and reg.sources["simulators"].value == "clods_bench.plugins.simulators.builtin"
@@ -154,10 +155,5 @@ def test_strict_mode_makes_any_failure_an_error(site: Path, monkeypatch: pytest.
         Registry.from_plugin_manager(make_plugin_manager(), strict=True)
     assert "1 plugin problem(s) in strict mode: plugin broken-import 0.1.0" in exc.value.message
     monkeypatch.setenv(STRICT_ENV, "1")
-    try:
-        with pytest.warns(PluginLoadWarning), pytest.raises(ClodsError, match="strict because of --strict-plugins"):
-            default_registry(refresh=True)
-    finally:
-        monkeypatch.delenv(STRICT_ENV)
-        sys.path.remove(str(site))
-        default_registry(refresh=True)
+    with pytest.warns(PluginLoadWarning), pytest.raises(ClodsError, match="strict because of --strict-plugins"):
+        default_registry(refresh=True)  # the registry cached before this test is put back by `site`

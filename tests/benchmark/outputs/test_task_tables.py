@@ -11,30 +11,27 @@ from typing import Iterator
 import pandas as pd
 import pytest
 
-import clods_bench.benchmark.core.registry as registry_module
 from clods_bench.benchmark.core.registry import STRICT_ENV, default_registry
 from clods_bench.benchmark.reproduction.reproduce import build_configs, load_plan
 from clods_bench.cli import main
 from clods_bench.errors import ClodsError
 from tests.conftest import TINY
-from tests.plugin_packages import TASKS, install
+from tests.plugin_packages import TASKS, install, only_own_plugins
 
 DIST = "coin-tasks"
 
 
 @pytest.fixture
-def site(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
-    """The tasks' distribution installed into a directory on sys.path, the registry built anew with it."""
+def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The tasks' distribution installed into a directory on sys.path; the registry sees it and the built-ins only."""
     path = tmp_path_factory.mktemp("tasks") / "site"
     install(path, DIST, TASKS)
-    monkeypatch.delenv(STRICT_ENV, raising=False)
-    monkeypatch.syspath_prepend(str(path))
-    monkeypatch.setattr(registry_module, "_DEFAULT", None)
-    try:
-        yield path
-    finally:
-        sys.modules.pop("cbt_coin_tasks", None)
-        registry_module._DEFAULT = None
+    with only_own_plugins(path) as mp:
+        mp.delenv(STRICT_ENV, raising=False)
+        try:
+            yield path
+        finally:
+            sys.modules.pop("cbt_coin_tasks", None)
 
 
 def _run(task: str, tiny_root: Path, runs: Path) -> None:

@@ -14,7 +14,7 @@ from clods_bench.benchmark.reproduction.reproduce import reproduce
 from clods_bench.benchmark.running.executors import LocalExecutor, make_executor
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import MAX_THREADS_ENV, torch_threads
+from clods_bench.numerics.thread_limits import MAX_THREADS_ENV, torch_threads
 from tests.benchmark.reproduction.test_reproduce import _overrides, _plan
 
 TIMING = ("infer_ms_per_step", "fit_seconds")

@@ -27,7 +27,7 @@ def test_modes_alternate_and_the_best_of_each_is_compared(monkeypatch: pytest.Mo
 
 def test_both_children_run_at_deterministic_modes_thread_count_and_only_one_is_pinned() -> None:
     det, host = determinism_bench._child_env(True), determinism_bench._child_env(False)
-    n = str(dm.pinning.threads())
+    n = str(dm.threads())
     assert det["OMP_NUM_THREADS"] == host["OMP_NUM_THREADS"] == n and det["NUMBA_NUM_THREADS"] == host["NUMBA_NUM_THREADS"] == n
     assert det[dm.SWITCH_ENV] == "1" and host[dm.SWITCH_ENV] == "0"
     assert det["MKL_CBWR"] == "COMPATIBLE" and host.get("MKL_CBWR") != "COMPATIBLE"

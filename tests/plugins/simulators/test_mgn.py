@@ -17,7 +17,7 @@ from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.datasets.types import HANDLE, NORMAL, OBSTACLE, Trajectory
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.simulators.learned.bsms import build_bsms
 from clods_bench.plugins.simulators.learned.config import MgnConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, build_features, build_topology

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.mau import MauConfig, MauPredictor
 from clods_bench.plugins.video.mau_model import MAU, MAUCell
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary

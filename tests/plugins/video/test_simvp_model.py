@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.simvp import SimvpConfig, SimvpPredictor
 from clods_bench.plugins.video.simvp_model import SimVP, Translator
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.tau import TauConfig, TauPredictor
 from clods_bench.plugins.video.tau_blocks import DropPath, TemporalAttentionModule, drop_path_rates, lka_kernels
 from clods_bench.plugins.video.tau_model import TAU, differential_divergence

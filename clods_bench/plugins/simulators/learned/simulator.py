@@ -28,7 +28,7 @@ from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.devices import torch_device
 from clods_bench.errors import ClodsError
-from clods_bench.numerics.threads import torch_threads
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.simulators.learned.checkpoint import (
     list_snapshots,
     load_checkpoint,
