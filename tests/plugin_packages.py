@@ -16,7 +16,7 @@ from typing import Callable, Iterator, Sequence
 
 import pytest
 
-from clods_bench.benchmark import plugin_loading, registry
+from clods_bench.benchmark.core import plugin_loading, registry
 from clods_bench.benchmark.core.plugin_loading import PluginSource
 
 ROOT = Path(__file__).resolve().parents[1]
