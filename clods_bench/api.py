@@ -1,7 +1,7 @@
 """The public plugin API of clods-bench, in one place, with its version.
 
 A plugin package imports what it needs from here (`from clods_bench.api import PluginSpec, hookimpl`) and may
-declare the API version it was written for in its entry-point module: `CLODS_BENCH_API = "1.1"`. Everything in
+declare the API version it was written for in its entry-point module: `CLODS_BENCH_API = "1.2"`. Everything in
 `__all__` follows the API's semantic versioning (`clods_bench.api_version`): a minor version only adds; a change or
 a removal is a major version, announced a minor release ahead with a `PluginAPIDeprecationWarning` that says what to
 write instead. The changelog names every change. Whatever is not listed here is internal and may change in any
@@ -9,17 +9,17 @@ release, even where a plugin can reach it.
 
 The hooks a plugin implements (one list of descriptors each, all implementations concatenated):
 `clods_bench_simulators`, `clods_bench_renderers`, `clods_bench_video_predictors` (`PluginSpec`),
-`clods_bench_scenes` (`SceneSpec`) and `clods_bench_tasks` (`TaskSpec`); their contracts are the docstrings of
-`clods_bench.benchmark.hookspecs`.
+`clods_bench_scenes` (`SceneSpec`) and `clods_bench_tasks` (`TaskSpec`, with the `TableLayout` of its table);
+their contracts are the docstrings of `clods_bench.benchmark.core.hookspecs`.
 """
 
 from __future__ import annotations
 
 from clods_bench.api_version import API_VERSION, DECLARATION, PluginAPIDeprecationWarning
-from clods_bench.benchmark.config import DataConfig, RunConfig
-from clods_bench.benchmark.descriptors import BuildContext, EmptyConfig, PluginSpec, TaskContext, TaskResult, TaskSpec
-from clods_bench.benchmark.hookspecs import ENTRY_POINT_GROUP, hookimpl
-from clods_bench.benchmark.interfaces import (
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.descriptors import BuildContext, EmptyConfig, PluginSpec, TableLayout, TaskContext, TaskResult, TaskSpec
+from clods_bench.benchmark.core.hookspecs import ENTRY_POINT_GROUP, hookimpl
+from clods_bench.benchmark.core.interfaces import (
     FitContext,
     Renderer,
     RolloutInput,
@@ -29,9 +29,11 @@ from clods_bench.benchmark.interfaces import (
     check_rollout,
     check_video,
 )
+from clods_bench.benchmark.outputs.tables import metric_frame
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.cloth_solver import SolverParams
 from clods_bench.datasets.cloths import Cloth, CylinderCloth, FlagCloth, MeshCloth, Resolution, SheetCloth, mesh_cloth_from_file
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.obstacles import Obstacle, ObstaclePath, Sphere
 from clods_bench.datasets.scenes import SceneSpec
@@ -56,6 +58,9 @@ __all__ = [
     "TaskContext",
     "TaskResult",
     "EmptyConfig",
+    # a task's table (API 1.2)
+    "TableLayout",
+    "metric_frame",
     "RunConfig",
     "DataConfig",
     # the plugin interfaces and their checks

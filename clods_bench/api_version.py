@@ -1,6 +1,6 @@
 """The plugin API's version, the versions a plugin may declare, and the deprecation schedule (no imports: every layer reads it).
 
-A plugin module declares the API it was written for as `CLODS_BENCH_API = "1.1"`. The API follows semantic
+A plugin module declares the API it was written for as `CLODS_BENCH_API = "1.2"`. The API follows semantic
 versioning of its own: a minor version adds, a major version changes or removes. This release loads plugins
 written for any minor version of its major version up to its own; a form it deprecates keeps working, with a
 `PluginAPIDeprecationWarning`, until the next minor release of clods-bench removes it.
@@ -8,7 +8,7 @@ written for any minor version of its major version up to its own; a form it depr
 
 from __future__ import annotations
 
-API_VERSION = "1.1"
+API_VERSION = "1.2"
 """The plugin API of this release (`clods_bench.api` lists it)."""
 
 DECLARATION = "CLODS_BENCH_API"

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 from PIL import Image
 
-from clods_bench.benchmark.config import load_config
+from clods_bench.benchmark.core.config import load_config
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.generate import make_cameras, resolution_of
 from clods_bench.datasets.rasterizer import RasterSettings, render_views

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark.config import RunConfig, load_config
+from clods_bench.benchmark.core.config import RunConfig, load_config
 
 TINY = [
     "data.resolution=[6,4]",
@@ -32,7 +32,7 @@ def tiny_config(root: Path, *extra: str, **fields) -> RunConfig:
 @pytest.fixture(scope="session")
 def tiny_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A directory holding the tiny dataset, generated once per test session."""
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.datasets.generate import generate
 
     root = tmp_path_factory.mktemp("tiny")

@@ -23,7 +23,8 @@ import numpy as np
 
 from clods_bench.atomic import file_lock, write_json
 from clods_bench.datasets.frame_store import LazyFrames, frames_record, write_frames
-from clods_bench.datasets.store import MANIFEST, SCHEMA_VERSION, DatasetStore, _remove_stale_temp_files
+from clods_bench.datasets.store import DatasetStore
+from clods_bench.datasets.store_manifest import MANIFEST, SCHEMA_VERSION, remove_stale_temp_files
 from clods_bench.errors import ClodsError
 
 _NPY = re.compile(r"frames_\d{4,}\.npy")
@@ -65,7 +66,7 @@ def convert_dataset(root: Path) -> Converted:
             return Converted(root, 0, removed, 0, already=True)
         if version != 1:
             raise ClodsError(f"cannot convert schema version {version!r} (only 1 -> {SCHEMA_VERSION})", where=str(root / MANIFEST))
-        _remove_stale_temp_files(root)
+        remove_stale_temp_files(root)
         new = json.loads(json.dumps(manifest))
         npy_bytes = stored = count = 0
         for entry in new.get("trajectories", []):

@@ -16,15 +16,15 @@ import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark.config import DataConfig, dataclass_from_dict
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import canonical
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
 from clods_bench.datasets.scenes import SceneSpec, simulate_scene
@@ -32,10 +32,7 @@ from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.textures import make_named_texture, save_texture
 from clods_bench.datasets.types import ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
-
-if TYPE_CHECKING:
-    from clods_bench.benchmark.config import RunConfig
-    from clods_bench.benchmark.registry import Registry
+from clods_bench.typed_config import dataclass_from_dict
 
 TEXTURE_FILE = "texture.png"
 FRAME_MODES = ("stored", "on_demand")
@@ -184,7 +181,7 @@ def generate_trajectory(job: TrajectoryJob) -> int:
 def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool = False, executor: Any = None) -> DatasetStore:
     """Generate (or finish generating) the dataset described by `d` in `d.dataset_dir()`.
 
-    `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.executors`) generates the
+    `executor` (an object with `map(fn, items, describe, progress)`, see `benchmark.running.executors`) generates the
     missing trajectories in parallel; None generates them here, one after another.
     """
     if d.path:
@@ -230,14 +227,6 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
                 generate_trajectory(job)
                 bar.advance(task)
         return DatasetStore.open(root)
-
-
-def ensure_dataset(cfg: "RunConfig", registry: "Registry", progress: bool = True, executor: Any = None) -> Any:
-    """Open the run's dataset, generating whatever part of it is missing (in parallel through `executor`, if given)."""
-    if cfg.data.path:
-        return open_existing(cfg.data.path, cfg.data.num_train + cfg.data.num_test)
-    scene = registry.get("scene", cfg.data.scene)
-    return generate(cfg.data, scene, progress=progress, executor=executor)
 
 
 def open_existing(path: str | Path, num_trajectories: int) -> DatasetStore:

@@ -5,7 +5,7 @@ surface (negative inside), the unit outward normal at the closest surface point 
 there; the cloth solver's contact uses it (`clods_bench.datasets.cloth_solver`). `surface(t)`: a triangle
 mesh of the surface with the same topology at every t, so a dataset can store it as OBSTACLE nodes per
 frame. Analytic shapes (Sphere, Capsule, Box) have exact signed distances; the triangle mesh finds the
-closest point by brute force (numba, `obstacle_kernels`) and signs it with the angle-weighted pseudo-normal
+closest point by brute force (numba; `obstacle_meshes`) and signs it with the angle-weighted pseudo-normal
 of the closest feature (Baerentzen & Aanaes 2005), exact for closed meshes; for an open mesh the side the
 face normals point away from counts as inside.
 
@@ -18,15 +18,22 @@ hashed field by field into the dataset identity.
 from __future__ import annotations
 
 import abc
-import functools
 import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from clods_bench.datasets import obstacle_kernels as ok
 from clods_bench.datasets.fixed_order import dot3
+from clods_bench.datasets.obstacle_meshes import (
+    cached_edge_ids,
+    icosphere,
+    mesh_arrays,
+    mesh_query,
+    orient_outward,
+    unit_vectors,
+    validate_mesh,
+)
 from clods_bench.errors import ClodsError
 
 Vec3 = tuple[float, float, float]
@@ -52,15 +59,6 @@ def _points(x: np.ndarray) -> np.ndarray:
     if x.ndim != 2 or x.shape[1] != 3:
         raise ClodsError(f"points must have shape (N, 3), got {x.shape}", where="Obstacle.query")
     return x
-
-
-def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    """Rows of v normalised; rows of (near) zero length become `fallback`."""
-    norm = np.linalg.norm(v, axis=-1, keepdims=True)
-    tiny = norm[..., 0] <= 1e-300
-    out = v / np.where(tiny[..., None], 1.0, norm)
-    out[tiny] = fallback[tiny] if fallback.ndim == v.ndim else fallback
-    return out
 
 
 @dataclass(frozen=True)
@@ -165,57 +163,6 @@ class MovingShape(Obstacle):
         """The surface mesh of the unmoved obstacle."""
 
 
-@functools.lru_cache(maxsize=8)
-def _icosphere_cached(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    phi = (1.0 + math.sqrt(5.0)) / 2.0
-    verts = [(-1, phi, 0), (1, phi, 0), (-1, -phi, 0), (1, -phi, 0), (0, -1, phi), (0, 1, phi),
-             (0, -1, -phi), (0, 1, -phi), (phi, 0, -1), (phi, 0, 1), (-phi, 0, -1), (-phi, 0, 1)]  # fmt: skip
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
-             (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
-             (8, 6, 7), (9, 8, 1)]  # fmt: skip
-    v = [np.array(p, dtype=np.float64) / np.linalg.norm(p) for p in verts]
-    for _ in range(subdivisions):
-        cache: dict[tuple[int, int], int] = {}
-
-        def mid(i: int, j: int) -> int:
-            key = (min(i, j), max(i, j))
-            if key not in cache:
-                m = v[i] + v[j]
-                v.append(m / np.linalg.norm(m))
-                cache[key] = len(v) - 1
-            return cache[key]
-
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    verts_arr = np.array(v)
-    faces_arr = _orient_outward(verts_arr, np.array(faces, dtype=np.int32), lambda c: np.zeros_like(c))
-    verts_arr.setflags(write=False)
-    faces_arr.setflags(write=False)
-    return verts_arr, faces_arr
-
-
-def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit sphere: vertices (M,3) float64 and outward CCW faces (F,3) int32; 20 * 4^subdivisions faces."""
-    if not (isinstance(subdivisions, (int, np.integer)) and 0 <= subdivisions <= 7):
-        raise ClodsError(f"must be an integer in 0..7, got {subdivisions!r}", where="icosphere.subdivisions")
-    verts, faces = _icosphere_cached(int(subdivisions))
-    return verts.copy(), faces.copy()
-
-
-def _orient_outward(verts: np.ndarray, faces: np.ndarray, inner) -> np.ndarray:
-    """Faces of a convex surface flipped where their normal points towards `inner(centroids)` (points inside)."""
-    tri = verts[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    centroid = tri.mean(axis=1)
-    flip = np.einsum("fi,fi->f", normal, centroid - inner(centroid)) < 0
-    out = faces.copy()
-    out[flip] = out[flip][:, [0, 2, 1]]
-    return out.astype(np.int32)
-
-
 @dataclass(frozen=True)
 class Sphere(MovingShape):
     """A ball; its surface mesh is an icosphere of `subdivisions` (2: 320 triangles)."""
@@ -227,7 +174,7 @@ class Sphere(MovingShape):
 
     def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rel = y - np.asarray(self.center, dtype=np.float64)[None, :]
-        return np.linalg.norm(rel, axis=1) - self.radius, _unit(rel, np.array([0.0, 0.0, 1.0]))
+        return np.linalg.norm(rel, axis=1) - self.radius, unit_vectors(rel, np.array([0.0, 0.0, 1.0]))
 
     def _local_surface(self) -> tuple[np.ndarray, np.ndarray]:
         verts, faces = icosphere(self.subdivisions)
@@ -274,7 +221,7 @@ class Capsule(MovingShape):
     def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rel = y - self._closest_on_axis(y)
         _, e, _ = self._axis()
-        return np.linalg.norm(rel, axis=1) - self.radius, _unit(rel, _perpendicular(e))
+        return np.linalg.norm(rel, axis=1) - self.radius, unit_vectors(rel, _perpendicular(e))
 
     def _local_surface(self) -> tuple[np.ndarray, np.ndarray]:
         a, e, length = self._axis()
@@ -300,7 +247,7 @@ class Capsule(MovingShape):
             faces += [np.stack([lo + k, lo + k1, hi + k1], axis=1), np.stack([lo + k, hi + k1, hi + k], axis=1)]
         top, last = verts.shape[0] - 1, 1 + (2 * nr - 1) * n
         faces.append(np.stack([np.full(n, top), last + k, last + k1], axis=1))
-        return verts, _orient_outward(verts, np.concatenate(faces), self._closest_on_axis)
+        return verts, orient_outward(verts, np.concatenate(faces), self._closest_on_axis)
 
     def validate(self, where: str) -> None:
         _vec3(self.a, f"{where}.a")
@@ -338,7 +285,7 @@ class Box(MovingShape):
         verts = c[None, :] + corners * h[None, :]
         quads = [(0, 2, 6, 4), (1, 3, 7, 5), (0, 1, 5, 4), (2, 3, 7, 6), (0, 1, 3, 2), (4, 5, 7, 6)]
         faces = np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], dtype=np.int32)
-        return verts, _orient_outward(verts, faces, lambda cen: np.broadcast_to(c, cen.shape))
+        return verts, orient_outward(verts, faces, lambda cen: np.broadcast_to(c, cen.shape))
 
     def validate(self, where: str) -> None:
         _vec3(self.center, f"{where}.center")
@@ -346,77 +293,6 @@ class Box(MovingShape):
         if not (h > 0).all():
             raise ClodsError(f"must be 3 positive numbers, got {self.half_extents!r}", where=f"{where}.half_extents")
         super().validate(where)
-
-
-def _validate_mesh(verts: np.ndarray, faces: np.ndarray, where: str, vert_field: str) -> None:
-    if not (isinstance(faces, np.ndarray) and faces.ndim == 2 and faces.shape[1] == 3 and faces.shape[0] >= 1):
-        raise ClodsError(f"must be an (F, 3) integer array with F >= 1, got {getattr(faces, 'shape', type(faces))}", where=f"{where}.faces")
-    if not np.issubdtype(faces.dtype, np.integer):
-        raise ClodsError(f"must be integers, got {faces.dtype}", where=f"{where}.faces")
-    m = verts.shape[-2]
-    if faces.min() < 0 or faces.max() >= m:
-        raise ClodsError(f"indices must be in [0, {m}), got [{faces.min()}, {faces.max()}]", where=f"{where}.faces")
-    if not np.isfinite(verts).all():
-        raise ClodsError("must be finite", where=f"{where}.{vert_field}")
-    tri = verts[..., faces, :]
-    area2 = np.linalg.norm(np.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]), axis=-1)
-    scale = max(float(np.ptp(verts.reshape(-1, 3), axis=0).max()), 1e-300)
-    bad = np.flatnonzero((area2 <= 1e-12 * scale * scale).reshape(-1, faces.shape[0]).any(axis=0))
-    if bad.size:
-        raise ClodsError(f"{bad.size} degenerate (zero-area) triangles, first is face {bad[0]}", where=f"{where}.faces")
-
-
-def _edge_ids(faces: np.ndarray) -> np.ndarray:
-    """(F,3) index of the undirected edges (v0,v1), (v1,v2), (v2,v0) of every face."""
-    e = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2).astype(np.int64)
-    e.sort(axis=1)
-    _, inverse = np.unique(e[:, 0] * (int(faces.max()) + 1) + e[:, 1], return_inverse=True)
-    return inverse.reshape(-1, 3)
-
-
-def _cached_edge_ids(obstacle: object) -> np.ndarray:
-    """`_edge_ids` of a frozen mesh obstacle's faces, computed once and kept on the instance."""
-    cached = obstacle.__dict__.get("_edge_id")
-    if cached is None:
-        cached = _edge_ids(np.asarray(obstacle.faces))  # type: ignore[attr-defined]
-        object.__setattr__(obstacle, "_edge_id", cached)
-    return cached
-
-
-def _mesh_query(x: np.ndarray, verts: np.ndarray, faces: np.ndarray, edge_id: np.ndarray):
-    """Signed distance, outward normal, closest face and barycentrics of points x (N,3) on a triangle mesh."""
-    tri = verts[faces]
-    e1, e2, e3 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2]
-    fn = _unit(np.cross(e1, -e3), np.array([0.0, 0.0, 1.0]))
-    # angle-weighted vertex pseudo-normals and edge pseudo-normals (sum of the adjacent faces' normals)
-    ue = [_unit(e, np.zeros(3)) for e in (e1, e2, e3)]
-    angles = [np.arccos(np.clip(-np.einsum("fi,fi->f", ue[(k + 2) % 3], ue[k]), -1.0, 1.0)) for k in range(3)]
-    vn = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], angles[k][:, None] * fn)
-    en = np.zeros((int(edge_id.max()) + 1, 3))
-    for k in range(3):
-        np.add.at(en, edge_id[:, k], fn)
-    n_pts = x.shape[0]
-    point, face = np.zeros((n_pts, 3)), np.zeros(n_pts, np.int64)
-    bary, feature = np.zeros((n_pts, 3)), np.zeros(n_pts, np.int64)
-    ok.closest_points(np.ascontiguousarray(x), verts, faces, tri.min(axis=1), tri.max(axis=1), point, face, bary, feature)
-    pseudo = fn[face]
-    for k, code in enumerate((ok.VERTEX_A, ok.VERTEX_B, ok.VERTEX_C)):
-        sel = feature == code
-        pseudo[sel] = vn[faces[face[sel], k]]
-    for k, code in enumerate((ok.EDGE_AB, ok.EDGE_BC, ok.EDGE_CA)):
-        sel = feature == code
-        pseudo[sel] = en[edge_id[face[sel], k]]
-    rel = x - point
-    dist = np.linalg.norm(rel, axis=1)
-    sign = np.where(np.einsum("ni,ni->n", rel, pseudo) < 0, -1.0, 1.0)
-    normal = np.where((dist > 1e-12)[:, None], sign[:, None] * rel / np.maximum(dist, 1e-300)[:, None], _unit(pseudo, fn[face]))
-    return sign * dist, normal, face, bary
-
-
-def _mesh_arrays(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return np.ascontiguousarray(verts, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -428,11 +304,11 @@ class TriangleMeshObstacle(MovingShape):
     path: ObstaclePath | None = None
 
     def _edges(self) -> np.ndarray:
-        return _cached_edge_ids(self)
+        return cached_edge_ids(self)
 
     def _local_query(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        verts, faces = _mesh_arrays(self.vertices, self.faces)
-        d, n, _, _ = _mesh_query(y, verts, faces, self._edges())
+        verts, faces = mesh_arrays(self.vertices, self.faces)
+        d, n, _, _ = mesh_query(y, verts, faces, self._edges())
         return d, n
 
     def _local_surface(self) -> tuple[np.ndarray, np.ndarray]:
@@ -442,7 +318,7 @@ class TriangleMeshObstacle(MovingShape):
         verts = np.asarray(self.vertices)
         if verts.ndim != 2 or verts.shape[1] != 3 or verts.shape[0] < 3:
             raise ClodsError(f"must be an (M, 3) array with M >= 3, got shape {verts.shape}", where=f"{where}.vertices")
-        _validate_mesh(verts.astype(np.float64), np.asarray(self.faces), where, "vertices")
+        validate_mesh(verts.astype(np.float64), np.asarray(self.faces), where, "vertices")
         super().validate(where)
 
     @classmethod
@@ -484,13 +360,13 @@ class FrameMeshObstacle(Obstacle):
         return pos, vel
 
     def _edges(self) -> np.ndarray:
-        return _cached_edge_ids(self)
+        return cached_edge_ids(self)
 
     def query(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = _points(x)
         pos, vel = self._state(t)
-        verts, faces = _mesh_arrays(pos, self.faces)
-        d, n, face, bary = _mesh_query(x, verts, faces, self._edges())
+        verts, faces = mesh_arrays(pos, self.faces)
+        d, n, face, bary = mesh_query(x, verts, faces, self._edges())
         return d, n, np.einsum("nk,nki->ni", bary, vel[faces[face]])
 
     def surface(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -501,7 +377,7 @@ class FrameMeshObstacle(Obstacle):
         frames = np.asarray(self.frames)
         if frames.ndim != 3 or frames.shape[2] != 3 or frames.shape[0] < 1 or frames.shape[1] < 3:
             raise ClodsError(f"must be a (T, M, 3) array with T >= 1, M >= 3, got shape {frames.shape}", where=f"{where}.frames")
-        _validate_mesh(frames.astype(np.float64), np.asarray(self.faces), where, "frames")
+        validate_mesh(frames.astype(np.float64), np.asarray(self.faces), where, "frames")
         _positive(self.dt, f"{where}.dt")
         if not math.isfinite(self.start_time):
             raise ClodsError(f"must be finite, got {self.start_time!r}", where=f"{where}.start_time")

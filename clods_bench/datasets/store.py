@@ -15,11 +15,11 @@ Files are written atomically before their manifest entry, so an interrupted gene
 no entry for a half-written trajectory and a later run resumes from `completed_indices()`. The
 manifest is re-read and rewritten under a file lock, so parallel workers can each add their own
 trajectory. Schema 1 stores (raw `frames_0000.npy`) are refused with a pointer to `clods-bench data convert`.
+The manifest itself (reading, checking, file records) is in `store_manifest`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import zipfile
@@ -28,17 +28,26 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from clods_bench.atomic import _jsonable, atomic_path, file_lock, write_json, write_npz
+from clods_bench.atomic import atomic_path, file_lock, write_json, write_npz
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.frame_store import FrameArray, LazyFrames, write_frames
 from clods_bench.datasets.rasterizer import RasterSettings
 from clods_bench.datasets.rendered_frames import RENDER_SETUP, RenderedFrames, read_render_setup, write_render_setup
 from clods_bench.datasets.splits import SPLITS
+from clods_bench.datasets.store_manifest import (
+    MANIFEST,
+    SCHEMA_VERSION,
+    config_diff,
+    digest_record,
+    file_record,
+    normalise,
+    read_manifest,
+    remove_stale_temp_files,
+    sha256_of,
+)
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
-SCHEMA_VERSION = 2
-MANIFEST = "manifest.json"
 MANIFEST_LOCK = ".manifest.lock"
 TRAJ_FIELDS = ("cells", "mesh_pos", "node_type", "world_pos")
 _DTYPES = {"cells": np.int32, "mesh_pos": np.float32, "node_type": np.int32, "world_pos": np.float32}
@@ -51,7 +60,7 @@ class DatasetStore:
     def __init__(self, root: Path, manifest: dict[str, Any] | None = None) -> None:
         """Open the store at `root` (same as `DatasetStore.open`); `manifest` is for create()."""
         self.root = Path(root)
-        self._manifest = manifest if manifest is not None else _read_manifest(self.root)
+        self._manifest = manifest if manifest is not None else read_manifest(self.root)
         self._entries: dict[int, dict[str, Any]] = {int(e["index"]): e for e in self._manifest["trajectories"]}
         self._render_setup: tuple | None = None  # read once per store when frames are rendered on demand
 
@@ -67,8 +76,8 @@ class DatasetStore:
         manifest = {
             "schema_version": SCHEMA_VERSION,
             "scene": scene,
-            "config": _normalise(config),
-            "cameras": _normalise([c.to_dict() for c in cameras]),
+            "config": normalise(config),
+            "cameras": normalise([c.to_dict() for c in cameras]),
             "texture": None,
             "trajectories": [],
         }
@@ -82,9 +91,9 @@ class DatasetStore:
                     raise
                 store = None  # unreadable manifest: --force starts over
             if store is not None:
-                diff = _diff(store._manifest, manifest)
+                diff = config_diff(store._manifest, manifest)
                 if not diff:
-                    _remove_stale_temp_files(root)
+                    remove_stale_temp_files(root)
                     return store
                 if not force:
                     raise ClodsError(
@@ -93,7 +102,7 @@ class DatasetStore:
                         hint="use a different dataset directory, or --force to regenerate it",
                     )
                 store._delete_files()
-        _remove_stale_temp_files(root)
+        remove_stale_temp_files(root)
         write_json(root / MANIFEST, manifest)
         return cls(root, manifest)
 
@@ -122,8 +131,8 @@ class DatasetStore:
         if index in self._entries:  # drop the old entry first: its files are about to change
             self._update_manifest(lambda: self._entries.pop(index, None))
         traj_name = f"traj_{index:04d}.npz"
-        write_npz(self.root / traj_name, dt=np.float64(traj.dt), meta=np.str_(json.dumps(_normalise(traj.meta))), **arrays)
-        files = {"traj": _file_record(self.root / traj_name)}
+        write_npz(self.root / traj_name, dt=np.float64(traj.dt), meta=np.str_(json.dumps(normalise(traj.meta))), **arrays)
+        files = {"traj": file_record(self.root / traj_name)}
         shapes = {k: list(v.shape) for k, v in arrays.items()}
         if frames is not None:
             shape = self._frames_shape(traj.num_steps)
@@ -148,14 +157,14 @@ class DatasetStore:
         shape = self._frames_shape(num_steps)
         files = {"frames": write_frames(self.root / f"frames_{index:04d}.zarr", frames, shape)}
         entry = {"index": index, "split": split, "seed": int(seed), "files": files, "shapes": {"frames": list(shape)},
-                 "dt": float(dt), "meta": _normalise(meta or {}), "complete": True}  # fmt: skip
+                 "dt": float(dt), "meta": normalise(meta or {}), "complete": True}  # fmt: skip
         self._update_manifest(lambda: self._entries.__setitem__(index, entry))
 
     def write_texture(self, data: bytes, name: str = "texture.png") -> None:
         """Store the texture image file (already encoded bytes) and record it in the manifest."""
         with atomic_path(self.root / name) as tmp:
             tmp.write_bytes(data)
-        record = {"name": name, **_digest_record(self.root / name)}
+        record = {"name": name, **digest_record(self.root / name)}
         self._update_manifest(lambda: self._manifest.__setitem__("texture", record))
 
     # ------------------------------------------------------------------- read
@@ -211,7 +220,7 @@ class DatasetStore:
         """Store what rendering the frames on demand needs (`rendered_frames.RENDER_SETUP`) and record it."""
         path = self.root / RENDER_SETUP
         write_render_setup(path, uv, texture, settings)
-        record = _file_record(path)
+        record = file_record(path)
         self._update_manifest(lambda: self._manifest.__setitem__("render_setup", record))
 
     def _rendered_frames(self, index: int) -> FrameArray:
@@ -329,7 +338,7 @@ class DatasetStore:
         if size != record["bytes"]:
             raise ClodsError(f"truncated: expected {record['bytes']} bytes, found {size}" if size < record["bytes"]
                              else f"wrong size: expected {record['bytes']} bytes, found {size}", where=str(path))
-        if verify and _sha256(path) != record["sha256"]:
+        if verify and sha256_of(path) != record["sha256"]:
             raise ClodsError("sha256 mismatch: file content differs from the manifest (corrupted)", where=str(path))
         return path
 
@@ -365,7 +374,7 @@ class DatasetStore:
         """Re-read the manifest under the lock (parallel writers add their own entries), apply `change()`, save."""
         with file_lock(self.root / MANIFEST_LOCK):
             if (self.root / MANIFEST).is_file():
-                self._manifest = _read_manifest(self.root)
+                self._manifest = read_manifest(self.root)
                 self._entries = {int(e["index"]): e for e in self._manifest["trajectories"]}
             change()
             self._save_manifest()
@@ -385,93 +394,3 @@ class DatasetStore:
                 shutil.rmtree(path)
             else:
                 path.unlink(missing_ok=True)
-
-
-# ------------------------------------------------------------------ helpers
-
-
-def _normalise(obj: Any) -> Any:
-    """What `obj` looks like after a JSON round trip (so configs compare equal to the stored ones)."""
-    return json.loads(json.dumps(_jsonable(obj), sort_keys=True))
-
-
-def _diff(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """Human-readable differences in scene, config keys and cameras between two manifests."""
-    out = []
-    if old["scene"] != new["scene"]:
-        out.append(f"scene (existing {old['scene']!r}, requested {new['scene']!r})")
-    a, b = old["config"], new["config"]
-    for key in sorted(set(a) | set(b)):
-        if a.get(key, "<absent>") != b.get(key, "<absent>"):
-            out.append(f"{key} (existing {a.get(key, '<absent>')!r}, requested {b.get(key, '<absent>')!r})")
-    if len(old["cameras"]) != len(new["cameras"]) or not all(
-        np.allclose(np.asarray(c[k], float), np.asarray(d[k], float)) for c, d in zip(old["cameras"], new["cameras"]) for k in c
-    ):
-        out.append("cameras")
-    return out
-
-
-def _read_manifest(root: Path) -> dict[str, Any]:
-    """Load and check `root/manifest.json`, with errors naming the path (and JSON error position)."""
-    path = root / MANIFEST
-    if not root.is_dir():
-        raise ClodsError("dataset directory not found", where=str(root), hint="generate the dataset first")
-    if not path.is_file():
-        raise ClodsError("dataset manifest not found", where=str(path), hint="generate the dataset first")
-    try:
-        manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ClodsError(f"malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}", where=str(path)) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ClodsError(f"cannot read manifest: {exc}", where=str(path)) from None
-    _check_manifest(manifest, str(path))
-    return manifest
-
-
-def _check_manifest(m: Any, where: str) -> None:
-    if not isinstance(m, dict):
-        raise ClodsError(f"expected a JSON object, got {type(m).__name__}", where=where)
-    version = m.get("schema_version")
-    if version == 1:
-        root = Path(where).parent
-        raise ClodsError(f"dataset stored in schema version 1 (one raw .npy of frames per trajectory); this clods-bench reads "
-                         f"version {SCHEMA_VERSION} (chunked, compressed frames)", where=where,
-                         hint=f"convert it in place, nothing is regenerated: clods-bench data convert {root}")  # fmt: skip
-    if version != SCHEMA_VERSION:
-        raise ClodsError(f"manifest schema version {version!r}, this clods-bench reads version {SCHEMA_VERSION}",
-                         where=f"{where}.schema_version", hint="regenerate the dataset (new directory or --force)")
-    for key, kind in (("scene", str), ("config", dict), ("cameras", list), ("trajectories", list)):
-        if not isinstance(m.get(key), kind):
-            raise ClodsError(f"missing or not a {kind.__name__}", where=f"{where}.{key}")
-    for n, e in enumerate(m["trajectories"]):
-        if not isinstance(e, dict) or not all(k in e for k in ("index", "split", "files", "shapes", "complete")):
-            raise ClodsError("entry lacks index/split/files/shapes/complete", where=f"{where}.trajectories[{n}]")
-        if ("traj" not in e["files"] and m.get("meshes", True) is not False) or not all(k in f for f in e["files"].values() for k in ("name", "sha256", "bytes")):
-            raise ClodsError("file records need name, sha256 and bytes", where=f"{where}.trajectories[{n}].files")
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 22), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def _digest_record(path: Path) -> dict[str, Any]:
-    return {"sha256": _sha256(path), "bytes": path.stat().st_size}
-
-
-def _file_record(path: Path) -> dict[str, Any]:
-    return {"name": path.name, **_digest_record(path)}
-
-
-def _remove_stale_temp_files(root: Path) -> None:
-    """Delete temp files and frame directories an interrupted writer left behind ('.<target>.*.tmp*')."""
-    if root.is_dir():
-        for p in root.iterdir():
-            if p.name.startswith((".traj_", ".frames_", f".{MANIFEST}.", ".texture")) and ".tmp" in p.name:
-                if p.is_dir():
-                    shutil.rmtree(p, ignore_errors=True)
-                else:
-                    p.unlink(missing_ok=True)

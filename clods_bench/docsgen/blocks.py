@@ -22,8 +22,10 @@ HEADLINE_ROWS = ("Physics", "MGN", "MGN*", "HCMT", "CloDS*", "CloDS**", "CloDS")
 
 def presets_table(root: Path) -> str:
     """One row per built-in preset, read from the preset files through the config loader."""
-    from clods_bench.benchmark.config import load_config, preset_description, preset_names
-    from clods_bench.plugins.simulators.learned.config import LearnedConfig
+    from clods_bench.benchmark.core.config import load_config, preset_description, preset_names
+    from clods_bench.benchmark.core.registry import default_registry
+
+    mgn = default_registry().get("simulator", "mgn")  # the learned simulators' training length, as MGN's config reads it
 
     lines = ["| preset | seeds | mesh nodes | trajectories (train + test) | frames (interpolation) | cameras (held out) | image | learned simulators train | what for |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
@@ -32,7 +34,7 @@ def presets_table(root: Path) -> str:
         cfg = load_config(name)
         d = cfg.data
         nodes = "1579 (FLAGSIMPLE)" if d.resolution == "flagsimple" else str(d.resolution[0] * d.resolution[1])
-        steps = (cfg.sim_config.get("mgn") or {}).get("train_steps", LearnedConfig().train_steps)
+        steps = mgn.make_config(cfg.sim_config.get("mgn") or {}, where=f"preset {name}: sim_config.mgn").train_steps
         lines.append(f"| `{name}` | {len(cfg.seeds)} | {nodes} | {d.num_train} + {d.num_test} | {d.num_steps} ({d.interp_steps}) | "
                      f"{d.num_cameras} ({d.num_views_test}) | {d.image_size} px | {steps:,} steps | {preset_description(name)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
@@ -81,7 +83,7 @@ KINDS = ("task", "simulator", "renderer", "video_predictor", "scene")
 def plugins_table(root: Path, kinds: tuple[str, ...] = KINDS) -> str:
     """Every installed plugin of `kinds` with its description, as `clods-bench list` prints them (the site is built
     where only the built-ins are installed), so no page describes a plugin in other words than its code."""
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     reg = default_registry()
     lines = ["| kind | name | description |" if len(kinds) > 1 else "| name | description |",

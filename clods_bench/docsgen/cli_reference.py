@@ -104,7 +104,7 @@ def _slug(heading: str) -> str:
 def cli_reference(parser: argparse.ArgumentParser | None = None) -> str:
     """The whole page: the top-level command, then every subcommand with its usage and options."""
     if parser is None:
-        from clods_bench.benchmark.cli import build_parser
+        from clods_bench.cli import build_parser
 
         parser = build_parser()
     prog = parser.prog

@@ -15,7 +15,7 @@ from typing import Any
 from clods_bench.docsgen.sources import as_list, field, load_yaml, where
 from clods_bench.errors import ClodsError
 
-PLAN_FILE = Path("clods_bench/benchmark/plans/reproduce.yaml")
+PLAN_FILE = Path("clods_bench/benchmark/reproduction/plans/reproduce.yaml")
 SOURCES_FILE = Path("docs/results_sources.yaml")
 TASK_PAGES = {
     "cdg": "tasks/cdg.md", "nvs": "tasks/nvs.md", "dvc": "tasks/dvc.md", "dvc_multi": "tasks/dvc.md",

@@ -1,1 +1,2 @@
-"""Built-in plugins (simulators, renderers, the CloDS pipeline), registered through entry points."""
+"""Built-in plugins (simulators, renderers, video predictors, scenes), registered through entry points exactly as a
+third-party package registers its own."""

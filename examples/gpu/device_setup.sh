@@ -13,5 +13,5 @@ if [ "${NO_GSPLAT:-0}" != 1 ]; then  # NO_GSPLAT=1: work without splatting on th
   echo "device_setup: gsplat kernels ready in $((SECONDS - _t0)) s"
 fi
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
-python3 -c "import torch, numpy, clods_bench.benchmark.lpips_weights as w; print('torch', torch.__version__, 'numpy', numpy.__version__, 'LPIPS weights', w.default_jax_ckpt_path())"
+python3 -c "import torch, numpy, clods_bench.benchmark.scoring.lpips_weights as w; print('torch', torch.__version__, 'numpy', numpy.__version__, 'LPIPS weights', w.default_jax_ckpt_path())"
 [ "${NO_GSPLAT:-0}" = 1 ] || python3 -c "import gsplat; print('gsplat', gsplat.__version__)"

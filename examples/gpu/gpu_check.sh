@@ -26,7 +26,7 @@ for stage in $stages; do
       python3 -c "import torch, gsplat; print('torch', torch.__version__, 'cuda', torch.version.cuda, 'gsplat', gsplat.__version__, torch.cuda.get_device_name())" 2>&1 | log gpu.txt
       /usr/bin/time -f "gsplat kernels built/loaded in %e s" python3 -c "from gsplat.cuda._backend import _C; assert _C is not None, 'gsplat extension missing'" 2>&1 | log gpu.txt ;;
     test)
-      python3 -m pytest -q -rs tests/plugins/splatting tests/plugins/renderers 2>&1 | log pytest_gpu.txt ;;
+      python3 -m pytest -q -rs tests/splatting tests/plugins/renderers 2>&1 | log pytest_gpu.txt ;;
     bench)
       clods-bench bench render 2>&1 | log bench_render.txt
       clods-bench bench render --views 30 --size 800 --no-reference 2>&1 | log bench_render.txt ;;
@@ -40,7 +40,7 @@ for stage in $stages; do
           --set renderer_config.smgs.device=$device 2>&1 | log nvs.txt
       done ;;
     surfels)
-      python3 -m pytest -q -rs -m "slow or not slow" tests/plugins/splatting/test_surfel_gsplat.py tests/benchmark/clods/test_stage0.py 2>&1 | log surfels.txt
+      python3 -m pytest -q -rs -m "slow or not slow" tests/splatting/test_surfel_gsplat.py tests/benchmark/clods/test_stage0.py 2>&1 | log surfels.txt
       timeout 120 python3 examples/gpu/surfel_nan.py 2>&1 | log surfels.txt  # stage 0 on gsplat: attached RMSE, non-finite gradients
       for backend in gsplat cpu; do
         /usr/bin/time -f "run initial_mesh backend=$backend: %e s" clods-bench run initial_mesh --preset ci --no-progress \

@@ -10,7 +10,7 @@
 #   run(carry=[".whl"], timeout_s=590, command="bash examples/gpu/host_check.sh")  # there: about 9 minutes
 #
 # Stages, each logged to $OUT (default ./host-check): the CPU's model and flags; `clods-bench numerics --probe`
-# against tests/benchmark/data/determinism_probe.json; the deterministic-mode tests; then as much of the seed-0
+# against tests/benchmark/speed/data/determinism_probe.json; the deterministic-mode tests; then as much of the seed-0
 # `ci` plan as LIMIT (seconds from the start, default 540) allows, 16 jobs, checked against results/ci (tables not
 # finished in time are not written nor checked; a second call on the same warm machine resumes them).
 set -uo pipefail
@@ -31,7 +31,7 @@ PY=${PY:-python3}
 $CLI numerics --probe 2>&1 | tee "$OUT/probe.txt"
 $PY - "$OUT/probe.txt" <<'EOF' 2>&1 | tee -a "$OUT/probe.txt"
 import json, re, sys
-want = json.load(open("tests/benchmark/data/determinism_probe.json"))["digests"]
+want = json.load(open("tests/benchmark/speed/data/determinism_probe.json"))["digests"]
 got = dict(re.findall(r"^probe (.+?): ([0-9a-f]{16})", open(sys.argv[1]).read(), re.M))
 for family, digest in want.items():
     print(f"{family}: {'same' if got.get(family) == digest else 'OTHER'} ({got.get(family)} here, {digest} committed)")

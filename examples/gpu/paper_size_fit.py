@@ -22,7 +22,7 @@ from rich.table import Table
 from clods_bench.datasets.meshes import make_flagsimple_mesh
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer
 from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer
-from clods_bench.plugins.splatting.flag_scene import bench_scene, wavy_flag_vertices
+from clods_bench.splatting.flag_scene import bench_scene, wavy_flag_vertices
 
 RENDERERS = {"games": (GamesRenderer, GamesConfig), "smgs": (SmgsRenderer, SmgsConfig)}
 SETUPS = {"cpu": {"device": "cpu", "backend": "cpu"}, "gpu": {"device": "cuda", "backend": "gsplat"}}

@@ -39,7 +39,7 @@ def cache_files(runs: Path) -> list[Path]:
 
 def egt_curves(runs: Path, data: Path, every: int) -> list[str]:
     """E-GT of each cached extraction against the dataset's true meshes (the cache's traj_<i> is trajectory i)."""
-    from clods_bench.benchmark.metrics import rmse_per_step
+    from clods_bench.benchmark.scoring.metrics import rmse_per_step
     from clods_bench.datasets.obstacle_nodes import cloth_nodes
     from clods_bench.datasets.store import DatasetStore
 

@@ -12,12 +12,12 @@ gradients by 0 (counting them) and scores the reconstructed sheet as the test do
 import argparse
 import time
 
+import gsplat.cuda._wrapper as W
 import numpy as np
 import torch
-import gsplat.cuda._wrapper as W
 
 from clods_bench.benchmark.clods.stage0 import Stage0Config, reconstruct_initial_mesh
-from clods_bench.benchmark.cross_topology import attach
+from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.cameras import camera_rig
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.rasterizer import RasterSettings, render_views

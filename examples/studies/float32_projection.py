@@ -16,9 +16,9 @@ import sys
 
 import torch
 
-import clods_bench.plugins.splatting.projection as projection
-import clods_bench.plugins.splatting.rasterize as rasterize
-from clods_bench.plugins.splatting.flag_scene import bench_scene
+import clods_bench.splatting.projection as projection
+import clods_bench.splatting.rasterize as rasterize
+from clods_bench.splatting.flag_scene import bench_scene
 
 
 def render(data: dict, cameras: list) -> torch.Tensor:

@@ -19,8 +19,8 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.types import Trajectory

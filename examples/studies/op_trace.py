@@ -25,14 +25,14 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import clods_bench  # noqa: F401  (the pins, before numpy and torch)
 import numpy as np
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
 
-from clods_bench.benchmark import determinism_probe as probe
-from clods_bench.benchmark.interfaces import FitContext
+import clods_bench  # noqa: F401  (the pins, before numpy and torch)
+from clods_bench.benchmark.core.interfaces import FitContext
+from clods_bench.benchmark.speed import determinism_probe as probe
 
 VIDEO = {"tau": {"hid_s": 8, "hid_t": 16, "enc_layers": 2, "trans_layers": 2, "kernel_size": 7, "mlp_ratio": 2.0},
          "mau": {"hidden": 8, "num_layers": 2, "tau": 2, "downsamples": 1},

@@ -11,7 +11,7 @@ sets differ only by Gaussians whose box misses the image under one rule.
 
 The compositing half of gsplat's torch twin (`accumulate`) needs nerfacc's packed ray operations, which run on
 CUDA only (nerfacc 0.5.3: "Only support cuda inputs"); it is compared on a GPU by
-`tests/plugins/splatting/test_backends.py::test_gsplat_backend_matches_the_reference_and_the_cpu`.
+`tests/splatting/test_backends.py::test_gsplat_backend_matches_the_reference_and_the_cpu`.
 
     python examples/studies/projection_vs_gsplat_torch.py --out results/studies/projection_vs_gsplat_torch/differences.txt
 """
@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from clods_bench.datasets.cameras import camera_rig
-from clods_bench.plugins.splatting import covariances_from_quats_scales
-from clods_bench.plugins.splatting.projection import project_gaussians
+from clods_bench.splatting import covariances_from_quats_scales
+from clods_bench.splatting.projection import project_gaussians
 
 
 def fail(message: str) -> None:

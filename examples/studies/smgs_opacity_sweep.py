@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from clods_bench.benchmark.image_metrics import psnr
+from clods_bench.benchmark.scoring.image_metrics import psnr
 from clods_bench.datasets.splits import spread
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer

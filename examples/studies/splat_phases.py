@@ -17,9 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from clods_bench.plugins.splatting import fast_kernels as K
-from clods_bench.plugins.splatting import projection_kernels as PK
-from clods_bench.plugins.splatting.bench import _run, bench_scene
+from clods_bench.splatting import fast_kernels as K, projection_kernels as PK
+from clods_bench.splatting.bench import _run, bench_scene
 
 TIMES: dict[str, list[float]] = collections.defaultdict(list)
 

@@ -23,17 +23,18 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from clods_bench.benchmark.builders import data_splits
 from clods_bench.benchmark.clods import stage0 as S
-from clods_bench.benchmark.clods.sheet_mesh import _frame, sheet_from_points
+from clods_bench.benchmark.clods.sheet_mesh import sheet_from_points
 from clods_bench.benchmark.clods.sheet_refine import refine_sheet
+from clods_bench.benchmark.clods.sheet_uv import best_plane
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.cross_topology import attach
+from clods_bench.benchmark.core.builders import data_splits
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.rasterizer import render_depth
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import ClothMesh
-from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
 
 def sample_surface(verts: np.ndarray, cells: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
@@ -102,7 +103,7 @@ def main(preset: str) -> None:
         dense = sample_surface(gt, cells, 20000)
         on_truth = float(np.sqrt(np.mean(cKDTree(dense).query(pts)[0] ** 2)))
         e_true = sheet_error(dense, gt, truth.num_nodes)[:2]
-        _, axes = _frame(dense)
+        _, axes = best_plane(dense)
         tri = gt[cells]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         cos = (n / np.linalg.norm(n, axis=1, keepdims=True)) @ axes[2]

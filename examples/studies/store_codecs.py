@@ -23,8 +23,8 @@ from typing import Callable
 import numpy as np
 
 from clods_bench.atomic import write_text
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.datasets.frame_store import LazyFrames, default_chunk_frames, write_frames
 from clods_bench.datasets.generate import _setup, render_steps
 from clods_bench.datasets.scenes import simulate_scene

@@ -18,11 +18,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
-from clods_bench.benchmark.config import load_config
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.fit_cache import fit_work_dir, sim_fit_identity
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.fit_cache import fit_work_dir, sim_fit_identity
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.tasks.stability import horizon_frames, long_ground_truth, long_input, scene_monitor, stability_config
 from clods_bench.datasets.store import DatasetStore
 

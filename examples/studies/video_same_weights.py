@@ -31,7 +31,18 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
-from video_references import KNOWN, StudyError, check_checkout, function_from_source, grad_diff, import_from, map_state, max_diff, need_file, randomize
+from video_references import (
+    KNOWN,
+    StudyError,
+    check_checkout,
+    function_from_source,
+    grad_diff,
+    import_from,
+    map_state,
+    max_diff,
+    need_file,
+    randomize,
+)
 
 from clods_bench.plugins.video.mau import MauConfig, MauPredictor
 from clods_bench.plugins.video.simvp import SimvpConfig, SimvpPredictor
@@ -39,7 +50,7 @@ from clods_bench.plugins.video.tau import TauConfig, TauPredictor
 from clods_bench.plugins.video.tau_model import differential_divergence
 
 B, T, H = 2, 5, 64
-PRESET = Path(__file__).resolve().parents[2] / "clods_bench/benchmark/presets/ci.yaml"
+PRESET = Path(__file__).resolve().parents[2] / "clods_bench/benchmark/core/presets/ci.yaml"
 
 
 def ci_config(name: str, cls: type) -> Any:

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.descriptors import BuildContext
-from clods_bench.benchmark.interfaces import RolloutInput
-from clods_bench.benchmark.monitors import cloth_monitor
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.descriptors import BuildContext
+from clods_bench.benchmark.core.interfaces import RolloutInput
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.scoring.monitors import cloth_monitor
 from clods_bench.datasets.cameras import camera_rig
 from clods_bench.datasets.generate import render_steps, scene_fingerprint
 from clods_bench.datasets.obstacle_nodes import OBSTACLE_COLOR, split_cloth

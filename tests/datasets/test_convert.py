@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from clods_bench.atomic import write_json, write_npz
-from clods_bench.benchmark.cli import main
+from clods_bench.cli import main
 from clods_bench.datasets import convert
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
@@ -49,7 +49,7 @@ def test_v1_store_error_names_data_convert(tmp_path):
 
 
 def test_generate_into_an_old_store_points_to_convert(tmp_path):
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.datasets.generate import generate
     from tests.conftest import tiny_config
 

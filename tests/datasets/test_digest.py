@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.cli import main
+from clods_bench.cli import main
 from clods_bench.datasets.digest import _hash_arrays, compare_digests, dataset_digest, frames_digest
 from clods_bench.datasets.store import DatasetStore
 from tests.conftest import tiny_config

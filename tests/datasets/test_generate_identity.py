@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark.config import DATA_GENERATOR_VERSION, DataConfig
+from clods_bench.datasets.data_config import DATA_GENERATOR_VERSION, DataConfig
 from clods_bench.datasets.generate import generate, scene_fingerprint
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.errors import ClodsError

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.datasets.generate import generate
 from clods_bench.datasets.store import DatasetStore
 from tests.conftest import tiny_config
@@ -59,7 +59,7 @@ def test_parallel_equals_serial(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("executor", ["local", "ray"])
 def test_worker_processes_equal_serial(tmp_path, executor):
-    from clods_bench.benchmark.executors import make_executor
+    from clods_bench.benchmark.running.executors import make_executor
 
     if executor == "ray":
         pytest.importorskip("ray")

@@ -11,7 +11,7 @@ import pytest
 
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import FlagCloth
-from clods_bench.benchmark.config import DataConfig
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.generate import scene_identity, scene_raster_settings
 from clods_bench.datasets.lighting import DirectionalLight
 from clods_bench.datasets.rasterizer import RasterSettings, render, render_depth, render_views

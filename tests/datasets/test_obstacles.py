@@ -8,6 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
+from clods_bench.datasets.obstacle_meshes import icosphere
 from clods_bench.datasets.obstacles import (
     Box,
     Capsule,
@@ -15,7 +16,6 @@ from clods_bench.datasets.obstacles import (
     ObstaclePath,
     Sphere,
     TriangleMeshObstacle,
-    icosphere,
     overlap,
 )
 from clods_bench.errors import ClodsError

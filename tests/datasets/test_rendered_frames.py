@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.config import DataConfig, load_config
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.datasets.generate import ensure_dataset
+from clods_bench.benchmark.core.config import load_config
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.run_data import ensure_dataset
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.rendered_frames import RENDER_SETUP, RenderedFrames, read_render_setup
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError

@@ -316,7 +316,7 @@ def test_existing_output_is_refused_without_force(exported: Path, tmp_path: Path
 
 
 def test_cli_export_and_import(original: DatasetStore, tiny_root: Path, tmp_path: Path, capsys) -> None:
-    from clods_bench.benchmark.cli import main
+    from clods_bench.cli import main
     from tests.conftest import TINY
 
     sets = [a for s in [*TINY, f"data.root={tiny_root / 'data'}"] for a in ("--set", s)]

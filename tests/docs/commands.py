@@ -111,7 +111,7 @@ def check_other(cmd: Command) -> str | None:
 
 def parse(words: tuple[str, ...]) -> Any:
     """The argparse namespace of a `clods-bench` command; argparse's complaint as a ClodsError."""
-    from clods_bench.benchmark.cli import build_parser
+    from clods_bench.cli import build_parser
 
     err = io.StringIO()
     try:
@@ -125,8 +125,8 @@ def parse(words: tuple[str, ...]) -> Any:
 
 def resolve(args: Any, registry: Any) -> None:
     """Everything a command does before it computes: its config built, its plugins and plan resolved."""
-    from clods_bench.benchmark.config import load_config
-    from clods_bench.benchmark.runner import check_plugins, resolve_plugin_configs
+    from clods_bench.benchmark.core.config import load_config
+    from clods_bench.benchmark.core.resolve import resolve_plugins
 
     def config(**fields: Any) -> Any:
         overrides = [*( [f"data.scene={args.scene}"] if getattr(args, "scene", None) else []), *args.overrides]
@@ -135,12 +135,11 @@ def resolve(args: Any, registry: Any) -> None:
     if args.command == "run":
         cfg = config(task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label,
                      train_subset=args.train_subset, seeds=args.seeds)  # fmt: skip
-        check_plugins(cfg, registry)
-        resolve_plugin_configs(cfg, registry)
+        resolve_plugins(cfg, registry)
     elif args.command == "data" and args.data_command in ("generate", "export"):
         registry.get("scene", config().data.scene)
     elif args.command == "reproduce":
-        from clods_bench.benchmark.reproduce import load_plan
+        from clods_bench.benchmark.reproduction.reproduce import load_plan
 
         plan = load_plan(args.plan)
         unknown = sorted(set(args.only) - {t.id for t in plan.tables})

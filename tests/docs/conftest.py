@@ -41,7 +41,7 @@ class Guide:
 @pytest.fixture(scope="session")
 def guide() -> Iterator[Guide]:
     """The built-in plugins plus the plugin guide's four examples, registered in memory (nothing installed)."""
-    from clods_bench.benchmark.registry import Registry, make_plugin_manager
+    from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 
     with pytest.MonkeyPatch.context() as mp:
         for folder in EXAMPLE_PACKAGES.values():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from clods_bench.benchmark.cli import build_parser
+from clods_bench.cli import build_parser
 from clods_bench.docsgen.cli_reference import cli_reference, walk
 from tests.docs.pages import heading_ids
 

@@ -46,7 +46,7 @@ def check(cmd: Command, registry: Any, copies: dict[str, str], deep: bool, ran: 
         kind = (words[1], "--dry-run" in words)
         if run_whole(cmd) and kind not in ran:
             ran.add(kind)
-            from clods_bench.benchmark.cli import main
+            from clods_bench.cli import main
 
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
                 code = main(list(words[1:]))

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext
-from clods_bench.benchmark.records import RECORD_FILE
+from clods_bench.benchmark.core.interfaces import FitContext
+from clods_bench.benchmark.running.records import RECORD_FILE
 from tests.conftest import tiny_config
 
 
@@ -48,7 +48,7 @@ def test_the_renderer_example_fits_renders_and_passes_gradients(tiny_root: Path,
 
 
 def test_the_renderer_example_runs_the_nvs_task(tmp_path: Path, tiny_root: Path, guide: Any) -> None:
-    from clods_bench.benchmark.runner import run_task
+    from clods_bench.benchmark.running.runner import run_task
 
     cfg = tiny_config(tmp_path, f"data.root={tiny_root / 'data'}", task="nvs", renderer="vertex-splat")
     m = _metrics(run_task(cfg, guide.registry))
@@ -88,7 +88,7 @@ def test_the_predictor_example_fits_the_least_squares_gain(tmp_path: Path, guide
 
 
 def test_the_predictor_example_runs_the_dvc_task_like_copy_last_at_gain_zero(tmp_path: Path, tiny_root: Path, guide: Any) -> None:
-    from clods_bench.benchmark.runner import run_task
+    from clods_bench.benchmark.running.runner import run_task
 
     registry = guide.registry
     base = [f"data.root={tiny_root / 'data'}"]

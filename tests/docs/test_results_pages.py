@@ -46,8 +46,8 @@ def test_each_small_file_is_copied_to_its_own_place_on_the_site() -> None:
 
 def _fake_root(tmp_path: Path) -> Path:
     """A checkout with a two-table plan, its ci tables, one small table and one picture, all listed."""
-    (tmp_path / "clods_bench/benchmark/plans").mkdir(parents=True)
-    (tmp_path / "clods_bench/benchmark/plans/reproduce.yaml").write_text(
+    (tmp_path / "clods_bench/benchmark/reproduction/plans").mkdir(parents=True)
+    (tmp_path / "clods_bench/benchmark/reproduction/plans/reproduce.yaml").write_text(
         "version: 1\ntables:\n  - {id: t1, task: cdg, title: 'Table 1: one'}\n  - {id: t2, task: nvs, title: 'Table 2: two'}\nruns: []\n"
     )
     for folder in ("results/ci", "results/small-partial", "results/plots", "docs"):

@@ -12,12 +12,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.cli import main
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import HANDLE, edges_from_cells
-from tests.benchmark.plugin_packages import only_own_plugins
 from tests.conftest import TINY, tiny_config
+from tests.plugin_packages import only_own_plugins
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "clods-bench-example-scene"
 

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from clods_bench import numerics as dm
-from clods_bench.benchmark.cli import main
-from clods_bench.benchmark.determinism import effective_paths
+from clods_bench.cli import main
+from clods_bench.benchmark.core.determinism import effective_paths
 from clods_bench.numerics import cpu, scope
 from clods_bench.errors import ClodsError
 
-COMMITTED = json.loads((Path(__file__).parents[1] / "benchmark" / "data" / "determinism_probe.json").read_text())
+COMMITTED = json.loads((Path(__file__).parents[1] / "benchmark" / "speed" / "data" / "determinism_probe.json").read_text())
 X86_AVX2 = not dm.missing_cpu_features()
 
 
@@ -40,7 +40,7 @@ def test_the_test_session_runs_on_the_pinned_paths() -> None:
 def test_each_model_family_gives_the_committed_bits(family: str) -> None:
     """The digests were made on another CPU (see the file's `made_on`); on the host's own paths they differ
     (`CLODS_BENCH_DETERMINISTIC=0 pytest tests/test_deterministic_mode.py` fails here on an AVX-512 CPU)."""
-    from clods_bench.benchmark.determinism_probe import probe
+    from clods_bench.benchmark.speed.determinism_probe import probe
 
     assert probe((family,))[family]["digest"] == COMMITTED["digests"][family]
 
@@ -86,15 +86,17 @@ def test_no_deterministic_is_a_plain_flag_on_the_host_paths() -> None:
 
 
 def test_records_and_caches_of_the_two_modes_never_mix(monkeypatch: pytest.MonkeyPatch) -> None:
-    from clods_bench.benchmark.clods.cache import digest
-    from clods_bench.benchmark.records import record_dir
+    from clods_bench.benchmark.core.cache_keys import digest
+    from clods_bench.benchmark.core.registry import default_registry
+    from clods_bench.benchmark.running.records import record_dir
     from tests.conftest import tiny_config
 
     cfg = tiny_config(Path("/tmp/x"), sim="constvel")
-    pinned = (record_dir(cfg), digest({"a": 1}))
+    registry = default_registry()
+    pinned = (record_dir(cfg, registry), digest({"a": 1}))
     monkeypatch.setitem(scope._state, "depth", 0)  # as outside the scope
     assert dm.numeric_mode() == "host"
-    assert record_dir(cfg) != pinned[0] and digest({"a": 1}) != pinned[1]
+    assert record_dir(cfg, registry) != pinned[0] and digest({"a": 1}) != pinned[1]
 
 
 def test_a_cpu_without_avx2_keeps_openblass_own_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -132,7 +134,7 @@ def test_emulated_intel_and_amd_cpus_give_the_committed_bits(cpu: str) -> None:
     instruction set, and under the pins all take the same arithmetic. QEMU computes IEEE arithmetic exactly and the
     CPU's approximate instructions its own way, so this also shows that no pinned path depends on those (before
     `exact_math`, MKL's vector sqrt did: see the file's `before_exact_math`)."""
-    code = ("from clods_bench import numerics\nnumerics.pin_environment()\nimport json\nfrom clods_bench.benchmark.determinism_probe import probe\n"
+    code = ("from clods_bench import numerics\nnumerics.pin_environment()\nimport json\nfrom clods_bench.benchmark.speed.determinism_probe import probe\n"
             "print(json.dumps({k: v['digest'] for k, v in probe().items()}))")
     out = subprocess.run(["qemu-x86_64", "-cpu", cpu, sys.executable, "-c", code], capture_output=True, text=True, timeout=3000)
     assert out.returncode == 0, out.stderr[-2000:]

@@ -9,17 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
 from tests.conftest import tiny_config
 
 PLUGIN = '''
 """A third-party simulator: damped constant velocity, with a typed config."""
 from dataclasses import dataclass
 import numpy as np
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
 
 
 @dataclass(frozen=True)

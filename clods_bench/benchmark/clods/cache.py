@@ -9,28 +9,15 @@ setting never reads a stale mesh.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from clods_bench import numerics
 from clods_bench.atomic import write_json, write_npz
+from clods_bench.benchmark.core.cache_keys import CACHE_FORMAT
 from clods_bench.errors import ClodsError
-
-CACHE_FORMAT = 1
-
-
-def digest(identity: Any) -> str:
-    """16 hex digits of the SHA-256 of a JSON-able identity (sorted keys)."""
-    key: dict[str, Any] = {"format": CACHE_FORMAT, "identity": identity}
-    if numerics.numeric_mode() != "deterministic":  # fits made on the host's own paths stay apart
-        key["numeric_mode"] = numerics.numeric_mode()
-    blob = json.dumps(key, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 @dataclass

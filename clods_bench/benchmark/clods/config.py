@@ -7,8 +7,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from clods_bench.benchmark.config import RunConfig, dataclass_from_dict
+from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 Variant = Literal["scratch", "finetune"]
 InitNoise = Literal["none", "gaussian", "translation", "scaling"]

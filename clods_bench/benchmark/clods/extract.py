@@ -22,7 +22,7 @@ import torch
 from rich.progress import Progress
 from torch import Tensor
 
-from clods_bench.benchmark.clods.cache import ExtractionCache, Extracted
+from clods_bench.benchmark.clods.cache import Extracted, ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.edge import edge_lengths, edge_loss, mesh_edges
 from clods_bench.benchmark.clods.prefetch import frames_ahead

@@ -1,4 +1,4 @@
-"""Default table labels of the CloDS rows of the paper's Table 2 (imported by `records.default_label`)."""
+"""Default table labels of the CloDS rows of the paper's Table 2 (the CDG task declares them as its row labels)."""
 
 from __future__ import annotations
 

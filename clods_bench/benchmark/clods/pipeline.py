@@ -16,19 +16,20 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.cache import ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.noise import initial_mesh
-from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.predict import OneStepPredictor
 from clods_bench.benchmark.clods.smooth import smooth_meshes, smoothing_tag
+from clods_bench.benchmark.clods.stage1 import cache_root, extraction_seed, fit_stage1, fit_stage1_keyed
 from clods_bench.benchmark.clods.stage3 import Pretrained, pretrain_simulator, train_simulator
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.interfaces import Simulator
-from clods_bench.benchmark.cross_topology import attach, attached_rmse
-from clods_bench.benchmark.metrics import rmse_per_step
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.cache_keys import digest
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.interfaces import Simulator
+from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse
+from clods_bench.benchmark.scoring.metrics import rmse_per_step
 from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
@@ -52,7 +53,7 @@ class PipelineResult:
 
 def video_train_ids(ctx: TaskContext) -> list[int]:
     """Trajectories whose videos train the row: CloDS** all training ones, CloDS* the first half, CloDS the second half."""
-    from clods_bench.benchmark.builders import split_spec
+    from clods_bench.benchmark.core.builders import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
     if opts.variant == "finetune":
@@ -65,7 +66,7 @@ def video_train_ids(ctx: TaskContext) -> list[int]:
 
 def pretrain_ids(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
     """Trajectories whose ground-truth meshes pretrain the simulator: the first half for variant=finetune, else none."""
-    from clods_bench.benchmark.builders import split_spec
+    from clods_bench.benchmark.core.builders import split_spec
 
     return list(split_spec(ctx).first_half) if opts.variant == "finetune" else []
 
@@ -73,7 +74,7 @@ def pretrain_ids(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
 def _views(ctx: TaskContext, opts: ClodsConfig) -> list[int]:
     """Training camera indices used by stages 1-2: all, or the first `num_cameras` of them (neighbours on the rig:
     two cameras spread to opposite sides would see the cloth along one line, with no baseline to triangulate)."""
-    from clods_bench.benchmark.builders import split_spec
+    from clods_bench.benchmark.core.builders import split_spec
 
     views = list(split_spec(ctx).train_views)
     if opts.num_cameras is not None:
@@ -114,7 +115,7 @@ def extract_meshes(ctx: TaskContext, train_ids: Sequence[int], pretrained: Pretr
 
     With start=simulator each frame starts from `pretrained`'s one-step prediction (pretrained here when not given);
     the cache key then includes that fit's identity, and the statistics its pretraining cost."""
-    from clods_bench.benchmark.builders import split_spec
+    from clods_bench.benchmark.core.builders import split_spec
 
     cfg, opts, splits = ctx.config, clods_config(ctx.config), split_spec(ctx)
     if not cfg.data.render_frames:
@@ -201,7 +202,7 @@ def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequ
     """The paper's appendix figure on error accumulation, on the training videos: per frame, the RMSE of the extracted
     meshes against the truth (E-GT), of the simulator's rollout from the true first two frames against the truth
     (P-GT) and against the extracted meshes (P-E), each averaged over the trajectories."""
-    from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
+    from clods_bench.benchmark.core.interfaces import RolloutInput, check_rollout
 
     curves: dict[str, list[np.ndarray]] = {"E-GT": [], "P-GT": [], "P-E": []}
     for ext, gt in zip(meshes, truth):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clods_bench.benchmark.interfaces import RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, check_rollout
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 

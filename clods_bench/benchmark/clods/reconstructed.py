@@ -20,17 +20,18 @@ import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clods_bench.atomic import file_lock, write_npz
-from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.cache import ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
 from clods_bench.benchmark.clods.stage0 import Stage0Config, reconstruct_initial_mesh
 from clods_bench.benchmark.clods.stage1 import cache_root, fit_stage1_keyed
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.cross_topology import attach, attached_rmse
-from clods_bench.benchmark.descriptors import TaskContext
+from clods_bench.benchmark.core.cache_keys import digest
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 
 def stage0_config(opts: ClodsConfig, seed: int) -> Stage0Config:

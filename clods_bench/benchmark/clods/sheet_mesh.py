@@ -33,6 +33,8 @@ learned cloth simulator needs one open manifold sheet with a chosen number of no
 6. every node NORMAL; `handles_from_tracks` + `with_handles` mark the pinned nodes from meshes tracked over the
    first frames.
 
+Steps 1 and 5 are in `sheet_uv` and `sheet_flatten`.
+
 Limits. With "plane" the sheet is a height field over one plane: cloth that turns over itself relative to the plane
 (a curled free end, a drape hanging on both sides of a bar) has several layers over one (u, v) point and they are
 averaged into one. "isomap" unrolls such a sheet as long as its layers stay further apart than the neighbour
@@ -43,156 +45,22 @@ surface-based remesher.
 
 from __future__ import annotations
 
-from typing import Any, Callable
-
 import numpy as np
 
+from clods_bench.benchmark.clods.sheet_flatten import flatten_geodesic, signed_areas
+from clods_bench.benchmark.clods.sheet_uv import (
+    ISOMAP_POINTS,
+    PARAMETERIZATIONS,
+    align_to_plane,
+    best_plane,
+    check_points,
+    extend_uv,
+    geodesic_uv,
+    voxel_thin,
+)
 from clods_bench.datasets.cloths import validate_cloth_mesh
-from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, boundary_nodes, edges_from_cells
+from clods_bench.datasets.types import HANDLE, NORMAL, ClothMesh, boundary_nodes
 from clods_bench.errors import ClodsError
-
-
-def _check_points(points: np.ndarray) -> np.ndarray:
-    p = np.asarray(points)
-    if p.ndim != 2 or p.shape[1] != 3 or not np.issubdtype(p.dtype, np.number):
-        raise ClodsError(f"shape {tuple(p.shape)} and dtype {p.dtype}, expected (N, 3) numbers", where="points")
-    p = p.astype(np.float64)
-    if not np.isfinite(p).all():
-        raise ClodsError(f"{int(np.sum(~np.isfinite(p).all(axis=1)))} points hold NaN/Inf", where="points")
-    if p.shape[0] < 10:
-        raise ClodsError(f"{p.shape[0]} points; a sheet needs at least 10", where="points")
-    return p
-
-
-def _frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid (3,) and right-handed axes (3,3): rows e1 (most variance), e2, n = e1 x e2 (least variance)."""
-    c = points.mean(axis=0)
-    q = points - c
-    _, vecs = np.linalg.eigh(q.T @ q)
-    e1, n = vecs[:, 2], vecs[:, 0]
-    e1 = e1 * (1.0 if e1[np.argmax(np.abs(e1))] > 0 else -1.0)  # deterministic signs
-    n = n * (1.0 if n[np.argmax(np.abs(n))] > 0 else -1.0)
-    e2 = np.cross(n, e1)
-    if np.linalg.norm(np.cross(e1, e2) - n) > 1e-6:  # pragma: no cover - eigh returns orthonormal vectors
-        raise ClodsError("the PCA axes are not orthonormal", where="points")
-    return c, np.stack([e1, e2, n])
-
-
-PARAMETERIZATIONS = ("isomap", "plane")
-ISOMAP_POINTS = 2500
-"""Points the isomap parameterisation keeps at least (voxel-thinned to about max(this, 8 x num_nodes)): an even
-density for the neighbour graph, and a bounded cost (its shortest paths run from each landmark)."""
-
-
-def voxel_thin(points: np.ndarray, target: int) -> np.ndarray:
-    """About `target` points: the centroids of the occupied cells of a cubic grid whose cell is sized to give that
-    many (a few fixed-point steps); `points` itself when it holds no more than `target`."""
-    p = np.asarray(points, np.float64)
-    if p.shape[0] <= target:
-        return p
-    lo = p.min(axis=0)
-    cell = float(np.ptp(p, axis=0).max()) / np.sqrt(target)
-    best: tuple[int, np.ndarray, np.ndarray] | None = None
-    for _ in range(16):
-        _, inv, cnt = np.unique(np.floor((p - lo) / cell).astype(np.int64), axis=0, return_inverse=True, return_counts=True)
-        if best is None or abs(cnt.size - target) < abs(best[1].size - target):
-            best = (cnt.size, cnt, inv.reshape(-1))
-        if abs(cnt.size - target) <= 0.05 * target:
-            break
-        cell *= float(np.sqrt(cnt.size / target))  # a sheet's cell count goes as 1 / cell^2
-    m, cnt, inv = best  # type: ignore[misc]
-    out = np.zeros((m, 3))
-    np.add.at(out, inv, p)
-    return out / cnt[:, None]
-
-
-def landmark_mds(sq_dist: np.ndarray, landmarks: np.ndarray, dims: int = 2) -> np.ndarray:
-    """(N, dims) coordinates of N points from their squared distances `sq_dist` (L, N) to L of them (`landmarks`,
-    indices into N): classical MDS of the landmarks, every point placed by distance triangulation (de Silva &
-    Tenenbaum 2004, landmark MDS). Exact, up to a rigid motion, for Euclidean distances of points in `dims`-space."""
-    delta = np.asarray(sq_dist, np.float64)
-    lm = delta[:, landmarks]
-    n = lm.shape[0]
-    centring = np.eye(n) - 1.0 / n
-    vals, vecs = np.linalg.eigh(-0.5 * centring @ lm @ centring)
-    vals, vecs = vals[::-1][:dims], vecs[:, ::-1][:, :dims]
-    if not np.all(vals > 1e-12 * max(float(vals[0]), 1e-300)):
-        raise ClodsError(f"the geodesic distances span {int(np.sum(vals > 0))} dimension(s), not {dims}", where="points")
-    pseudo = vecs.T / np.sqrt(vals)[:, None]  # (dims, L)
-    return (-0.5 * pseudo @ (delta - lm.mean(axis=1)[:, None])).T
-
-
-def geodesic_uv(points: np.ndarray, neighbours: int = 8, landmarks: int = 256) -> tuple[np.ndarray, np.ndarray]:
-    """(indices of the points kept, (M,2) coordinates): the points' surface unrolled by geodesic distances.
-
-    The geodesics are shortest paths over the symmetric `neighbours`-nearest-neighbour graph (its largest connected
-    component is kept: a stray cluster is dropped); `landmarks` of them chosen by farthest-point sampling along the
-    graph, then `landmark_mds`, scaled so that graph neighbours keep their 3D distances (median). Shortest paths run
-    from the landmarks only, so the cost grows linearly with the points."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components, dijkstra
-    from scipy.spatial import cKDTree
-
-    p = np.asarray(points, np.float64)
-    k = min(int(neighbours), p.shape[0] - 1)
-    dist, idx = cKDTree(p).query(p, k=k + 1)
-    n = p.shape[0]
-    rows = np.repeat(np.arange(n), k)
-    graph = csr_matrix((np.maximum(dist[:, 1:].ravel(), 1e-12), (rows, idx[:, 1:].ravel())), shape=(n, n))
-    graph = graph.maximum(graph.T).tocsr()
-    _, label = connected_components(graph, directed=False)
-    kept = np.flatnonzero(label == np.argmax(np.bincount(label)))
-    if kept.size < 10:
-        raise ClodsError(f"the neighbour graph's largest piece holds {kept.size} points; a sheet needs at least 10", where="points")
-    graph = graph[kept][:, kept]
-    count = min(int(landmarks), kept.size)
-    first = int(np.argmax(dijkstra(graph, indices=0)))  # an extreme point: the farthest from an arbitrary one
-    chosen, rows_d = [first], [dijkstra(graph, indices=first)]
-    nearest = rows_d[0].copy()
-    while len(chosen) < count:
-        nxt = int(np.argmax(nearest))
-        if nearest[nxt] <= 0.0:
-            break
-        chosen.append(nxt)
-        rows_d.append(dijkstra(graph, indices=nxt))
-        np.minimum(nearest, rows_d[-1], out=nearest)
-    uv = landmark_mds(np.stack(rows_d) ** 2, np.asarray(chosen))
-    # graph paths zigzag, a few % longer than the surface's geodesics: rescale so neighbours keep their 3D distance
-    pairs = graph.tocoo()
-    flat = np.linalg.norm(uv[pairs.row] - uv[pairs.col], axis=1)
-    ok = flat > 0
-    return kept, uv * float(np.median(pairs.data[ok] / flat[ok]))
-
-
-def _extend_uv(thin: np.ndarray, thin_uv: np.ndarray, points: np.ndarray, neighbours: int = 8) -> tuple[np.ndarray, np.ndarray]:
-    """(points kept, their (u, v)): every point placed from its nearest thinned point by that point's local affine map
-    from 3D to (u, v) (least squares over its neighbours, the sheet's normal direction cut off), so the fit keeps
-    every point's density and a boundary point lands outside the thinned points rather than among them. Points whose
-    nearest thinned point is further than 2 thinned spacings (a stray cluster the graph dropped) are left out."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(thin)
-    dist, nb = tree.query(thin, k=min(neighbours, thin.shape[0] - 1) + 1)
-    spacing = float(np.median(dist[:, 1]))
-    dx = thin[nb[:, 1:]] - thin[:, None]
-    du = thin_uv[nb[:, 1:]] - thin_uv[:, None]
-    jac = np.linalg.pinv(dx, rcond=0.1) @ du  # (M,3,2): dx @ jac ~ du; the out-of-sheet direction is below rcond
-    d, j = tree.query(points)
-    near = d <= 2.0 * spacing
-    q, j = points[near], j[near]
-    return q, thin_uv[j] + np.einsum("nx,nxu->nu", q - thin[j], jac[j])
-
-
-def _align_to_plane(uv: np.ndarray, plane_uv: np.ndarray) -> np.ndarray:
-    """`uv` mirrored (if need be) and turned to best match `plane_uv`: the plane's axes and handedness (orthogonal
-    Procrustes, the mirror chosen by the sign of the least-squares linear map between the two)."""
-    a, b = uv - uv.mean(axis=0), plane_uv - plane_uv.mean(axis=0)
-    lin = np.linalg.lstsq(a, b, rcond=None)[0]
-    if np.linalg.det(lin) < 0:
-        a[:, 1] = -a[:, 1]
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
-    return a @ (U @ D @ Vt) + plane_uv.mean(axis=0)
 
 
 def _occupancy(uv: np.ndarray, lo: np.ndarray, nx: int, ny: int, du: float, dv: float, closing: int) -> np.ndarray:
@@ -327,11 +195,6 @@ def _positions(uv: np.ndarray, xyz: np.ndarray, nodes_uv: np.ndarray, radius: fl
     return out
 
 
-def _signed_areas(uv: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    a, b, c = uv[cells[:, 0]], uv[cells[:, 1]], uv[cells[:, 2]]
-    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-
-
 def _snap_boundary(
     uv: np.ndarray, nodes_uv: np.ndarray, cells: np.ndarray, cell: float, max_move: float = 1.0, min_area: float = 0.15
 ) -> np.ndarray:
@@ -348,12 +211,12 @@ def _snap_boundary(
     if b.size == 0:
         return nodes_uv
     step = np.minimum(dist - spacing, max_move * cell)[:, None] * (q - nodes_uv[b]) / dist[:, None]
-    area0 = _signed_areas(nodes_uv, cells)
+    area0 = signed_areas(nodes_uv, cells)
     out = nodes_uv.copy()
     scale = np.ones(b.size)
     for _ in range(6):  # halve the moves of nodes whose triangles would get too thin
         out[b] = nodes_uv[b] + scale[:, None] * step
-        thin = _signed_areas(out, cells) < min_area * area0
+        thin = signed_areas(out, cells) < min_area * area0
         if not thin.any():
             return out
         bad_nodes = np.unique(cells[thin])
@@ -373,73 +236,6 @@ def _triangulate(occ: np.ndarray, nx: int) -> np.ndarray:
     return np.concatenate([t1, t2], axis=0).astype(np.int64)
 
 
-FOLD_MIN = 0.1
-"""`flatten_geodesic` keeps every triangle's signed area above this fraction of its 3D area (a hinge residual)."""
-FLATTEN_MAX_EVALUATIONS = 5000
-"""Residual evaluations of the flattening's least squares at most (about 3 s for 128 nodes)."""
-FOLD_WEIGHT = 10.0
-"""Weight of that hinge against the relative edge-length residuals."""
-
-
-def flatten_problem(rest: np.ndarray, cells: np.ndarray) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], Any]]:
-    """(residual, sparse Jacobian) of `flatten_geodesic` over the flattened (V*2,) layout: relative edge-length
-    errors, then the fold hinge FOLD_WEIGHT * min(0, signed area / 3D area - FOLD_MIN) per triangle."""
-    from scipy.sparse import csr_matrix
-
-    edges = edges_from_cells(cells)
-    length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
-    tri = rest[cells]
-    area3 = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    n_e, n_v, n_f = edges.shape[0], rest.shape[0], cells.shape[0]
-    rows = np.concatenate([np.repeat(np.arange(n_e), 4), n_e + np.repeat(np.arange(n_f), 6)])
-    cols = np.concatenate([
-        np.stack([2 * edges[:, 0], 2 * edges[:, 0] + 1, 2 * edges[:, 1], 2 * edges[:, 1] + 1], 1).ravel(),
-        np.stack([2 * cells[:, 0], 2 * cells[:, 0] + 1, 2 * cells[:, 1], 2 * cells[:, 1] + 1, 2 * cells[:, 2], 2 * cells[:, 2] + 1], 1).ravel(),
-    ])  # fmt: skip
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        m = x.reshape(n_v, 2)
-        edge = (np.linalg.norm(m[edges[:, 0]] - m[edges[:, 1]], axis=1) - length) / length
-        fold = FOLD_WEIGHT * np.minimum(_signed_areas(m, cells) / area3 - FOLD_MIN, 0.0)
-        return np.concatenate([edge, fold])
-
-    def jac(x: np.ndarray) -> csr_matrix:
-        m = x.reshape(n_v, 2)
-        dvec = m[edges[:, 0]] - m[edges[:, 1]]
-        g = dvec / (np.linalg.norm(dvec, axis=1, keepdims=True) * length[:, None])
-        a, b, c = m[cells[:, 0]], m[cells[:, 1]], m[cells[:, 2]]
-        d_area = 0.5 * np.stack([b[:, 1] - c[:, 1], c[:, 0] - b[:, 0], c[:, 1] - a[:, 1], a[:, 0] - c[:, 0],
-                                 a[:, 1] - b[:, 1], b[:, 0] - a[:, 0]], axis=1)  # fmt: skip
-        active = _signed_areas(m, cells) / area3 < FOLD_MIN
-        d_area *= (FOLD_WEIGHT * active / area3)[:, None]
-        vals = np.concatenate([np.concatenate([g, -g], axis=1).ravel(), d_area.ravel()])
-        return csr_matrix((vals, (rows, cols)), shape=(n_e + n_f, 2 * n_v))
-
-    return residual, jac
-
-
-def flatten_geodesic(rest: np.ndarray, cells: np.ndarray, init: np.ndarray) -> np.ndarray:
-    """(V,2) layout whose edge lengths best match `rest`'s (least squares), started from `init` (V,2), aligned to it.
-
-    A hinge residual per triangle (`flatten_problem`; signed area, counter-clockwise in `init` positive) keeps
-    triangles from turning over where noisy rest positions make a thin one: the edge lengths alone are as happy
-    with a folded layout as with a flat one."""
-    from scipy.optimize import least_squares
-
-    n_v = rest.shape[0]
-    residual, jac = flatten_problem(rest, cells)
-    # tolerances 1e-8: a refined (doubly curved) sheet crawls to 1e-10 over ~25,000 evaluations (20-35 s at ci) to a
-    # cost equal to 6 digits; max_nfev bounds the time where the fold hinge's kink slows the trust region
-    sol = least_squares(residual, init.ravel(), jac=jac, method="trf", tr_solver="lsmr", x_scale="jac", xtol=1e-8, ftol=1e-8,
-                        max_nfev=FLATTEN_MAX_EVALUATIONS)  # fmt: skip
-    m = sol.x.reshape(n_v, 2)
-    # rigid alignment (rotation, no reflection) onto the start, so the layout keeps the grid's orientation
-    mc, ic = m - m.mean(axis=0), init - init.mean(axis=0)
-    U, _, Vt = np.linalg.svd(mc.T @ ic)
-    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
-    return mc @ (U @ D @ Vt) + init.mean(axis=0)
-
-
 def sheet_from_points(
     points: np.ndarray,
     num_nodes: int,
@@ -456,7 +252,7 @@ def sheet_from_points(
     `snap`: pull boundary nodes that overshoot the points (a grid's staircase edge) back onto the points' boundary.
     Raises ClodsError for bad input or when the points do not make a sheet.
     """
-    p = _check_points(points)
+    p = check_points(points)
     if isinstance(num_nodes, bool) or not isinstance(num_nodes, (int, np.integer)) or num_nodes < 4:
         raise ClodsError(f"num_nodes must be an integer >= 4, got {num_nodes!r}", where="num_nodes")
     if radius is not None and not (np.isfinite(radius) and radius > 0):
@@ -465,7 +261,7 @@ def sheet_from_points(
         raise ClodsError(f"closing must be a non-negative integer, got {closing}", where="closing")
     if parameterization not in PARAMETERIZATIONS:
         raise ClodsError(f"unknown parameterization {parameterization!r}; one of {', '.join(PARAMETERIZATIONS)}", where="parameterization")
-    centre, axes = _frame(p)
+    centre, axes = best_plane(p)
     q = (p - centre) @ axes.T
     uv, h = q[:, :2], q[:, 2]
     span = uv.max(axis=0) - uv.min(axis=0)
@@ -475,7 +271,7 @@ def sheet_from_points(
         thin = voxel_thin(p, max(ISOMAP_POINTS, 8 * int(num_nodes)))
         kept, geo = geodesic_uv(thin)
         thin = thin[kept]
-        p, uv = _extend_uv(thin, _align_to_plane(geo, ((thin - centre) @ axes.T)[:, :2]), p)
+        p, uv = extend_uv(thin, align_to_plane(geo, ((thin - centre) @ axes.T)[:, :2]), p)
         span = uv.max(axis=0) - uv.min(axis=0)
 
     target = int(num_nodes)
@@ -518,7 +314,7 @@ def sheet_from_points(
 def _sheet(rest: np.ndarray, cells: np.ndarray, layout: np.ndarray, where: str) -> ClothMesh:
     """The validated sheet of nodes `rest` whose `mesh_pos` flattens their edge lengths, started from `layout`."""
     mesh_pos = flatten_geodesic(rest, cells, layout)
-    if np.any(_signed_areas(mesh_pos, cells) <= 0.0):  # folded layout despite the hinge: keep the start's (u, v)
+    if np.any(signed_areas(mesh_pos, cells) <= 0.0):  # folded layout despite the hinge: keep the start's (u, v)
         mesh_pos = np.array(layout, dtype=np.float64)
     mesh_pos -= mesh_pos.min(axis=0)
     mesh = ClothMesh(cells.astype(np.int32), mesh_pos.astype(np.float32), np.full(rest.shape[0], NORMAL, np.int32), rest)

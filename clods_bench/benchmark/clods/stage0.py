@@ -17,13 +17,14 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from clods_bench.benchmark.clods.sheet_mesh import PARAMETERIZATIONS, sheet_from_points, with_rest_positions
+from clods_bench.benchmark.clods.sheet_mesh import sheet_from_points, with_rest_positions
 from clods_bench.benchmark.clods.sheet_refine import RefineOptions, refine_sheet
+from clods_bench.benchmark.clods.sheet_uv import PARAMETERIZATIONS
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import ClothMesh
 from clods_bench.errors import ClodsError
-from clods_bench.plugins.splatting.surfel_fit import fit_surfels, surfel_depth_maps
+from clods_bench.splatting.surfel_fit import fit_surfels, surfel_depth_maps
 
 WHERE = "task_config.initial_mesh"
 
@@ -53,7 +54,7 @@ class Stage0Config:
     """Seed of the surfel initialisation and the hull sampling."""
     backend: str = "cpu"
     """Surfel renderer of the fit: 'cpu' (numba) or 'gsplat' (gsplat's 2DGS kernels on a CUDA GPU; depth is then
-    each surfel's centre depth, see `plugins/splatting/surfel_gsplat.py`)."""
+    each surfel's centre depth, see `splatting/surfel_gsplat.py`)."""
     sheet: str = "isomap"
     """Parameterisation of the sheet mesh (`sheet_mesh.sheet_from_points`): 'isomap' (geodesic: a flag whose free end
     curls over itself unrolls) or 'plane' (a height field over the points' best-fit plane; the layers of a curl are

@@ -19,11 +19,11 @@ import numpy as np
 import torch
 
 from clods_bench.atomic import atomic_path, file_lock, write_json
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.interfaces import Renderer
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.cache_keys import digest
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.interfaces import Renderer
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -60,7 +60,7 @@ def fit_stage1_keyed(
     cameras: Sequence[Camera],
 ) -> tuple[Renderer, dict[str, float], str]:
     """Fit (or load from the cache) the run's renderer on meshes `initial` (B,V,3) and images (B,N,H,W,3); also return its digest."""
-    from clods_bench.benchmark.builders import build_renderer
+    from clods_bench.benchmark.core.builders import build_renderer
 
     cfg, opts = ctx.config, clods_config(ctx.config)
     if not cfg.renderer:

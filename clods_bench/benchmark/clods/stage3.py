@@ -18,11 +18,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from clods_bench.atomic import file_lock
-from clods_bench.benchmark import stage_digests
 from clods_bench.benchmark.clods.config import ClodsConfig
-from clods_bench.benchmark.descriptors import TaskContext
-from clods_bench.benchmark.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
-from clods_bench.benchmark.interfaces import FitContext, Simulator
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.descriptors import TaskContext
+from clods_bench.benchmark.core.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
+from clods_bench.benchmark.core.interfaces import FitContext, Simulator
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
@@ -64,7 +64,7 @@ class Pretrained:
 def pretrain_simulator(ctx: TaskContext, pretrain_ids: Sequence[int]) -> Pretrained:
     """Train the run's simulator, with its own config, on the ground-truth meshes of `pretrain_ids` (the MGN* fit,
     shared with that row through the fit cache); stage 3 starts from it and start=simulator predicts with it."""
-    from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
+    from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
     from clods_bench.datasets.store import DatasetStore
 
     pre = build_simulator(ctx)
@@ -85,7 +85,7 @@ def train_simulator(
     """Fit the run's simulator on the extracted `meshes` (identified by `extraction_key`), starting from the
     `pretrained` weights when given; return it and statistics (`*_cost_seconds`: training time, cached fits at
     their recorded cost). The fit runs in a content-addressed work directory (`fit_cache`)."""
-    from clods_bench.benchmark.builders import build_simulator
+    from clods_bench.benchmark.core.builders import build_simulator
 
     cfg = ctx.config
     stats: dict[str, float] = {}

@@ -7,19 +7,27 @@ import time
 import numpy as np
 from rich.progress import Progress
 
-from clods_bench.benchmark.builders import build_simulator, data_splits, fit_on_meshes
-from clods_bench.benchmark.config import DataConfig
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.eval_data import WHERE, scored_data
-from clods_bench.benchmark.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.interfaces import RolloutInput, check_rollout
-from clods_bench.benchmark.mesh_pictures import save_mesh_sample
-from clods_bench.benchmark.metrics import cdg_columns, divergence_step, rmse_per_step
-from clods_bench.benchmark.monitors import cloth_monitor
+from clods_bench.benchmark.clods.labels import clods_label
+from clods_bench.benchmark.core.builders import build_simulator, data_splits, fit_on_meshes
+from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.core.eval_data import WHERE, scored_data
+from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
+from clods_bench.benchmark.core.interfaces import RolloutInput, check_rollout
+from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.scoring.metrics import cdg_columns, divergence_step, rmse_per_step
+from clods_bench.benchmark.scoring.monitors import cloth_monitor
+from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.obstacle_nodes import cloth_nodes
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
+
+
+def cdg_row_label(cfg: RunConfig) -> str | None:
+    """The row label of a CDG run given none: a simulator learned from video (--sim and --renderer) is a CloDS row
+    ('CloDS**', 'CloDS*', 'CloDS', see `clods.labels`); other rows get the default (their plugin names)."""
+    return clods_label(cfg) if cfg.sim and cfg.renderer else None
 
 
 def run_cdg(ctx: TaskContext) -> TaskResult:

@@ -26,15 +26,7 @@ import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.benchmark.builders import as_images, split_spec
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import RolloutInput, check_prediction, check_rollout
-from clods_bench.benchmark.media import write_image_grid
-from clods_bench.benchmark.mesh_pictures import save_mesh_sample
-from clods_bench.benchmark.metrics import divergence_step
-from clods_bench.benchmark.video_runs import (
+from clods_bench.benchmark.clods.video_runs import (
     ImageScores,
     Recovered,
     build_predictor,
@@ -47,8 +39,16 @@ from clods_bench.benchmark.video_runs import (
     video_frames,
     write_video,
 )
+from clods_bench.benchmark.core.builders import as_images, split_spec
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.core.interfaces import RolloutInput, check_prediction, check_rollout
+from clods_bench.benchmark.outputs.media import write_image_grid
+from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
+from clods_bench.benchmark.scoring.metrics import divergence_step
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 if TYPE_CHECKING:
     from clods_bench.datasets.cameras import Camera

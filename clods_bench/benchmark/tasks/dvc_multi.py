@@ -31,13 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import torch
 
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
-from clods_bench.benchmark.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
-from clods_bench.benchmark.metrics import divergence_step
-from clods_bench.benchmark.builders import as_images, split_spec
-from clods_bench.benchmark.video_runs import (
+from clods_bench.benchmark.clods.video_runs import (
     ImageScores,
     build_predictor,
     fit_predictor,
@@ -50,9 +44,15 @@ from clods_bench.benchmark.video_runs import (
     video_frames,
     write_video,
 )
+from clods_bench.benchmark.core.builders import as_images, split_spec
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
+from clods_bench.benchmark.scoring.metrics import divergence_step
 from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 if TYPE_CHECKING:
     from clods_bench.datasets.cameras import Camera

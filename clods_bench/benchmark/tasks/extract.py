@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 WHERE = "task_config.extract"
 
@@ -111,9 +111,9 @@ def _scored_in_images(ctx: TaskContext, opts: ExtractConfig, store: Any, ids: li
     stage-1 renderer, scored against the held-out cameras' frames (unseen by stages 0-2) and the training ones'."""
     import torch
 
-    from clods_bench.benchmark.builders import as_images, split_spec
-    from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
-    from clods_bench.benchmark.video_runs import ImageScores, to_float
+    from clods_bench.benchmark.clods.video_runs import ImageScores, to_float
+    from clods_bench.benchmark.core.builders import as_images, split_spec
+    from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 
     splits, rig = split_spec(ctx), store.cameras()
     groups = {"": list(splits.test_views), "train/": list(splits.train_views)}

@@ -15,20 +15,20 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.builders import split_spec
 from clods_bench.benchmark.clods.config import clods_config
 from clods_bench.benchmark.clods.reconstructed import stage0_mesh
 from clods_bench.benchmark.clods.stage0 import Stage0Config, foreground_masks
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.cross_topology import attach, chamfer
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.builders import split_spec
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.scoring.cross_topology import attach, chamfer
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.rasterizer import render_depth
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import ClothMesh
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 WHERE = "task_config.initial_mesh"
 

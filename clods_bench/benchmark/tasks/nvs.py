@@ -34,15 +34,15 @@ import torch
 from rich.progress import Progress
 
 from clods_bench.atomic import atomic_path
-from clods_bench.benchmark import stage_digests
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.builders import as_images, build_renderer, split_spec
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
-from clods_bench.benchmark.media import write_image_grid
+from clods_bench.benchmark.core import stage_digests
+from clods_bench.benchmark.core.builders import as_images, build_renderer, split_spec
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.outputs.media import write_image_grid
+from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.visual_hull import box_mesh, hull_box
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 GRID_FILE = "nvs_grid.png"
 PARTIAL_FILE = "nvs_partial.pt"

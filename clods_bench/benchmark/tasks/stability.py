@@ -24,16 +24,16 @@ from rich.console import Console
 from rich.progress import Progress
 
 from clods_bench.atomic import write_npz
-from clods_bench.benchmark.builders import build_simulator, fit_on_meshes, split_spec
-from clods_bench.benchmark.config import dataclass_from_dict
-from clods_bench.benchmark.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.interfaces import RolloutInput, Simulator, check_rollout
-from clods_bench.benchmark.metrics import rmse_per_step
-from clods_bench.benchmark.monitors import MeshMonitor, cloth_monitor, first_failure
-from clods_bench.benchmark.fit_cache import fit_cost_seconds
+from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
+from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
+from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.scoring.metrics import rmse_per_step
+from clods_bench.benchmark.scoring.monitors import MeshMonitor, cloth_monitor, first_failure
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import dataclass_from_dict
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.plugins.renderers.games import GamesConfig
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig
 from clods_bench.plugins.renderers.smgs import SmgsConfig

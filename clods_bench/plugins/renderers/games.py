@@ -24,8 +24,8 @@ from clods_bench.plugins.renderers.device import check_device_config, fit_device
 from clods_bench.plugins.renderers.fitting import ParamGroup, check_positive, fit_adam
 from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.mesh_gaussians import anchor_gaussians, barycentric_layout
-from clods_bench.plugins.splatting import render_gaussians
-from clods_bench.plugins.splatting.sh import num_sh_bases
+from clods_bench.splatting import render_gaussians
+from clods_bench.splatting.sh import num_sh_bases
 
 Backend = Literal["cpu", "reference", "gsplat"]
 

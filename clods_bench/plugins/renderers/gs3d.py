@@ -33,7 +33,7 @@ from clods_bench.plugins.renderers.fitting import ParamGroup, check_positive, fi
 from clods_bench.plugins.renderers.games import Backend, colors_of, init_colors, logit
 from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.mesh_gaussians import face_frames, mean_face_size
-from clods_bench.plugins.splatting import render_gaussians
+from clods_bench.splatting import render_gaussians
 
 
 @dataclass(frozen=True)

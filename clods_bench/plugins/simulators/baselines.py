@@ -6,7 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import Trajectory
 
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from clods_bench.benchmark.descriptors import PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.descriptors import PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.plugins.simulators.baselines import ConstantVelocity, Frozen
 from clods_bench.plugins.simulators.learned.config import MgnConfig
 from clods_bench.plugins.simulators.learned.lip_config import LipConfig

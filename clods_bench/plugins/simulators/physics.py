@@ -22,8 +22,8 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
-from clods_bench.benchmark.monitors import flat_rest_pos, scene_rest_mesh
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.scoring.monitors import flat_rest_pos, scene_rest_mesh
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
 from clods_bench.datasets.obstacle_nodes import split_cloth
 from clods_bench.datasets.obstacles import TriangleMeshObstacle

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from clods_bench.benchmark.descriptors import BuildContext, PluginSpec
-from clods_bench.benchmark.hookspecs import hookimpl
+from clods_bench.benchmark.core.descriptors import BuildContext, PluginSpec
+from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.plugins.video.mau import MauConfig
 from clods_bench.plugins.video.mmvp import MmvpConfig
 from clods_bench.plugins.video.simvp import SimvpConfig

@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from clods_bench.benchmark.interfaces import FitContext, check_video
+from clods_bench.benchmark.core.interfaces import FitContext, check_video
 
 
 class CopyLastPredictor:

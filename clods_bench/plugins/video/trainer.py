@@ -27,7 +27,7 @@ from rich.progress import Progress
 from torch import nn
 
 from clods_bench.atomic import atomic_path
-from clods_bench.benchmark.interfaces import FitContext, check_video
+from clods_bench.benchmark.core.interfaces import FitContext, check_video
 from clods_bench.devices import check_device_name, torch_device
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.thread_limits import torch_threads

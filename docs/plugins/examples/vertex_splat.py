@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import torch
 
 from clods_bench.api import ClodsError, PluginSpec, hookimpl
-from clods_bench.plugins.splatting import render_gaussians  # the benchmark's splatting (internal: not in clods_bench.api)
+from clods_bench.splatting import render_gaussians  # the benchmark's splatting (internal: not in clods_bench.api)
 
 CLODS_BENCH_API = "1.1"  # the plugin API this module is written for
 

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.clods.cache import ExtractionCache, digest
+from clods_bench.benchmark.clods.cache import ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import extract_trajectory
+from clods_bench.benchmark.core.cache_keys import digest
 
 from .conftest import smooth_deformation
 

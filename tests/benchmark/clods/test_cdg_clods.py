@@ -10,10 +10,10 @@ import pytest
 
 from clods_bench.benchmark.clods.config import clods_config
 from clods_bench.benchmark.clods.labels import clods_label
-from clods_bench.benchmark.hookspecs import hookimpl
-from clods_bench.benchmark.records import RECORD_FILE, default_label
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.hookspecs import hookimpl
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE, default_label
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
 
@@ -51,10 +51,10 @@ def test_constvel_from_video_matches_mesh_supervised_rollouts(tiny_root: Path, t
 
 def test_labels_and_variants(tiny_root: Path):
     cfg = tiny_config(tiny_root, sim="mgn", renderer="smgs")
-    assert default_label(cfg) == "CloDS**"
+    assert default_label(cfg, default_registry()) == "CloDS**"
     assert clods_label(tiny_config(tiny_root, sim="mgn", renderer="smgs", train_subset="first_half")) == "CloDS*"
     fine = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="mgn", renderer="smgs")
-    assert default_label(fine) == "CloDS" and clods_config(fine).variant == "finetune"
+    assert default_label(fine, default_registry()) == "CloDS" and clods_config(fine).variant == "finetune"
     with pytest.raises(ClodsError, match="task_config.clods"):
         clods_config(tiny_config(tiny_root, "task_config.clods.gama=0.1"))
     with pytest.raises(ClodsError, match="num_cameras"):
@@ -65,7 +65,7 @@ def test_stage3_overrides_given_are_laid_over_the_papers_rollout_loss():
     """Setting one stage-3 option on a preset without sim_overrides (as the paper-trajectory script sets train_steps
     on `paper`) keeps the 8-step rollout loss of eq. 8 instead of silently dropping it; `loss: one_step` still
     switches it off."""
-    from clods_bench.benchmark.config import load_config
+    from clods_bench.benchmark.core.config import load_config
 
     assert clods_config(load_config("paper", None, [])).sim_overrides == {"loss": "rollout", "rollout_length": 8}
     one = clods_config(load_config("paper", None, ["task_config.clods.sim_overrides.train_steps=20"]))
@@ -114,10 +114,10 @@ def test_warm_start_hands_over_a_copy_of_the_trained_model():
 def test_fit_stage1_is_cached_and_reloads_the_same_renderer(tiny_root: Path, tmp_path: Path, monkeypatch):
     import torch
 
-    from clods_bench.plugins.renderers.games import GamesRenderer
     from clods_bench.benchmark.clods.pipeline import fit_stage1
-    from clods_bench.benchmark.descriptors import TaskContext
+    from clods_bench.benchmark.core.descriptors import TaskContext
     from clods_bench.datasets.store import DatasetStore
+    from clods_bench.plugins.renderers.games import GamesRenderer
 
     cfg = tiny_config(tiny_root, f"runs_dir={tmp_path}", *FAST, sim="constvel", renderer="games")
     ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path / "w", registry=default_registry())
@@ -150,24 +150,24 @@ class _ThirdPartySim:
 
     @hookimpl
     def clods_bench_simulators(self):
-        from clods_bench.benchmark.descriptors import PluginSpec
+        from clods_bench.benchmark.core.descriptors import PluginSpec
         from clods_bench.plugins.simulators.learned.config import MgnConfig
 
         return [PluginSpec(name="acme", description="third-party MGN", build=self._build, config_cls=MgnConfig, learned=True)]
 
 
 def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_root: Path, tmp_path: Path):
-    """Fast half of the check below: check_plugins accepts the name, stage 3 builds that plugin with its overrides."""
+    """Fast half of the check below: resolve_plugins accepts the name, stage 3 builds that plugin with its overrides."""
     from clods_bench.benchmark.clods.config import clods_config
     from clods_bench.benchmark.clods.stage3 import stage3_context
-    from clods_bench.benchmark.descriptors import TaskContext
-    from clods_bench.benchmark.registry import Registry, make_plugin_manager
-    from clods_bench.benchmark.runner import check_plugins
-    from clods_bench.benchmark.builders import build_simulator
+    from clods_bench.benchmark.core.builders import build_simulator
+    from clods_bench.benchmark.core.descriptors import TaskContext
+    from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+    from clods_bench.benchmark.core.resolve import resolve_plugins
 
     registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
     cfg = tiny_config(tiny_root, "task_config.clods.variant=finetune", sim="acme", renderer="smgs")
-    check_plugins(cfg, registry)
+    resolve_plugins(cfg, registry)
     ctx = TaskContext(config=cfg, seed=0, work_dir=tmp_path, registry=registry)
     sim = build_simulator(stage3_context(ctx, clods_config(cfg)))
     assert sim.name == "acme" and sim.config.loss == "rollout"  # the stage-3 default: eq. 8's rollout loss
@@ -178,7 +178,7 @@ def test_a_third_party_backbone_is_built_by_name_with_the_stage3_overrides(tiny_
 def test_any_registered_simulator_is_a_clods_backbone_by_name(tiny_root: Path, tmp_path: Path):
     """The backbone ablation's rows: `sim: <name>` picks the backbone, a third-party plugin included, and it is the
     simulator stage 3 fine-tunes (pre-trained on the first half's meshes, then trained on the second half's videos)."""
-    from clods_bench.benchmark.registry import Registry, make_plugin_manager
+    from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 
     registry = Registry.from_plugin_manager(make_plugin_manager([_ThirdPartySim()]))
     tiny = ["sim_config.acme.latent_size=8", "sim_config.acme.message_passing_steps=1", "sim_config.acme.train_steps=4",

@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import start_guess
 from clods_bench.benchmark.clods.pipeline import extraction_identity
 from clods_bench.benchmark.clods.predict import OneStepPredictor
-from clods_bench.benchmark.interfaces import RolloutInput
+from clods_bench.benchmark.core.cache_keys import digest
+from clods_bench.benchmark.core.interfaces import RolloutInput
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.simulators.baselines import ConstantVelocity
@@ -109,7 +109,7 @@ def test_start_simulator_needs_the_finetune_variant(variant):
 
 def test_start_simulator_error_through_the_run_config():
     from clods_bench.benchmark.clods.config import clods_config
-    from clods_bench.benchmark.config import RunConfig
+    from clods_bench.benchmark.core.config import RunConfig
 
     cfg = dataclasses.replace(RunConfig(), task_config={"clods": {"start": "simulator"}})
     with pytest.raises(ClodsError) as err:

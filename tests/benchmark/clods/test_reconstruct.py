@@ -9,19 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from clods_bench.benchmark.clods.sheet_mesh import (
-    FOLD_MIN,
-    flatten_geodesic,
-    flatten_problem,
-    geodesic_uv,
-    handles_from_tracks,
-    landmark_mds,
-    sheet_from_points,
-    voxel_thin,
-    with_handles,
-)
+from clods_bench.benchmark.clods.sheet_flatten import FOLD_MIN, flatten_geodesic, flatten_problem
+from clods_bench.benchmark.clods.sheet_mesh import handles_from_tracks, sheet_from_points, with_handles
+from clods_bench.benchmark.clods.sheet_uv import geodesic_uv, landmark_mds, voxel_thin
 from clods_bench.benchmark.clods.tsdf import backproject, extract_surface, fuse_depth_maps, trim_to_support
-from clods_bench.benchmark.cross_topology import attach, attached_rmse, chamfer, follow
+from clods_bench.benchmark.scoring.cross_topology import attach, attached_rmse, chamfer, follow
 from clods_bench.datasets.cameras import Camera, camera_rig, look_at
 from clods_bench.datasets.cloths import validate_cloth_mesh
 from clods_bench.datasets.meshes import make_flag_mesh

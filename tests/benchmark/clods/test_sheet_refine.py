@@ -10,7 +10,7 @@ import torch
 from clods_bench.benchmark.clods.sheet_mesh import with_rest_positions
 from clods_bench.benchmark.clods.sheet_refine import RefineOptions, face_samples, photo_loss, project, refine_sheet, sample_image, silhouette_loss
 from clods_bench.benchmark.clods.stage0 import foreground_masks
-from clods_bench.benchmark.cross_topology import attach
+from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.cameras import camera_rig
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.rasterizer import RasterSettings, render_views

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.clods.cache import digest
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.clods.pipeline import extraction_identity
 from clods_bench.benchmark.clods.smooth import savgol_positions, smooth_meshes, smoothing_tag
-from clods_bench.benchmark.records import RECORD_FILE
-from clods_bench.benchmark.registry import default_registry
-from clods_bench.benchmark.runner import run_task
+from clods_bench.benchmark.core.cache_keys import digest
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.running.records import RECORD_FILE
+from clods_bench.benchmark.running.runner import run_task
 from clods_bench.datasets.types import HANDLE, NORMAL, Trajectory
 from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config

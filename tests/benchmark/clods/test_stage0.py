@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.clods.stage0 import Stage0Config, foreground_masks, look_at_point, reconstruct_initial_mesh, visual_hull
-from clods_bench.benchmark.cross_topology import attach
+from clods_bench.benchmark.scoring.cross_topology import attach
 from clods_bench.datasets.cameras import camera_rig
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
@@ -56,7 +56,7 @@ def test_visual_hull_of_a_sphere_holds_it_and_little_more():
 
 
 def _gsplat_or_skip(backend: str) -> None:
-    from clods_bench.plugins.splatting.gsplat_backend import gsplat_available
+    from clods_bench.splatting.gsplat_backend import gsplat_available
 
     ok, why = gsplat_available()
     if backend == "gsplat" and not ok:

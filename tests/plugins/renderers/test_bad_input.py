@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.datasets.cameras import Camera
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer

@@ -9,10 +9,10 @@ import torch
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.device import check_device_config, leaf_to, tensors_to
 from clods_bench.plugins.renderers.games import GamesConfig, GamesRenderer
-from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig, Gs3dRenderer
+from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.smgs import SmgsConfig, SmgsRenderer
-from clods_bench.plugins.splatting.gsplat_backend import gsplat_available
+from clods_bench.splatting.gsplat_backend import gsplat_available
 
 from .conftest import grid_mesh, rig
 from .test_games import fitted, randomise

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from clods_bench.datasets.cameras import Camera, intrinsics_from_fov, look_at
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.games import GamesConfig
-from clods_bench.datasets.cameras import Camera, intrinsics_from_fov, look_at
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig, Gs3dRenderer, random_init, rotmat_to_quat, surface_init, visible_faces
-from clods_bench.plugins.splatting.projection import quat_to_rotmat
+from clods_bench.splatting.projection import quat_to_rotmat
 
 from .conftest import grid_mesh, rig
 from .test_games import fitted, randomise

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext
+from clods_bench.benchmark.core.interfaces import FitContext
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -307,7 +307,7 @@ def test_interrupted_training_resumes_to_the_same_weights(waving: Trajectory, tm
 
 
 def test_registered_as_a_learned_simulator():
-    from clods_bench.benchmark.registry import default_registry
+    from clods_bench.benchmark.core.registry import default_registry
 
     spec = default_registry().get("simulator", "dhmp")
     assert spec.learned and spec.make_config({"levels": 2}, where="sim_config.dhmp") == DhmpConfig(levels=2)

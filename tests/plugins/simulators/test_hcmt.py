@@ -21,7 +21,7 @@ from clods_bench.plugins.simulators.learned.unet_configs import HcmtConfig
 from tests.plugins.simulators.graph_fixtures import jittered_mesh, make_inputs, permute_inputs, union_inputs
 
 LATENT = 16
-CI = dict(latent_size=48, levels=3)  # the ci preset's HCMT widths (clods_bench/benchmark/presets/ci.yaml)
+CI = dict(latent_size=48, levels=3)  # the ci preset's HCMT widths (clods_bench/benchmark/core/presets/ci.yaml)
 
 
 def processor(levels: int = 2, edge_sets: tuple[str, ...] = ("mesh",), seed: int = 0) -> HcmtProcessor:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext
+from clods_bench.benchmark.core.interfaces import FitContext
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.types import HANDLE, NORMAL, Trajectory
@@ -251,8 +251,8 @@ def test_batched_samples_never_connect(windless: Trajectory) -> None:
 
 def test_plan_row_is_the_finetune_pipeline_without_the_edge_loss() -> None:
     """The geometry-aware table: LIP = particle model, finetune variant, gamma 0; its CloDS row is Table 2's run."""
-    from clods_bench.benchmark.registry import default_registry
-    from clods_bench.benchmark.reproduce import build_configs, config_identity, default_plan_path, load_plan
+    from clods_bench.benchmark.core.registry import default_registry
+    from clods_bench.benchmark.reproduction.reproduce import build_configs, config_identity, default_plan_path, load_plan
 
     rows = {(run.table, run.label): cfg for run, cfg in build_configs(load_plan(default_plan_path()), "ci", default_registry())}
     row = rows[("geometry_aware", "LIP-style")]

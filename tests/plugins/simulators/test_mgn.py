@@ -11,19 +11,19 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.scenes import get_scene
 from clods_bench.datasets.types import HANDLE, NORMAL, OBSTACLE, Trajectory
 from clods_bench.errors import ClodsError
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.simulators.learned.bsms import build_bsms
 from clods_bench.plugins.simulators.learned.config import MgnConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, build_features, build_topology
 from clods_bench.plugins.simulators.learned.mgn import build_mgn
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
 from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
-from clods_bench.numerics.thread_limits import torch_threads
 from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=True)

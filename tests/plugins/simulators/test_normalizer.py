@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.cloth_solver import ClothSolver, SolverParams
 from clods_bench.datasets.meshes import make_flag_mesh
 from clods_bench.datasets.types import Trajectory

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.descriptors import BuildContext
-from clods_bench.benchmark.interfaces import RolloutInput
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.descriptors import BuildContext
+from clods_bench.benchmark.core.interfaces import RolloutInput
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.datasets.cloth_solver import ClothSolver
 from clods_bench.datasets.scenes import draw_wind, get_scene, simulate_scene
 from clods_bench.errors import ClodsError

@@ -12,13 +12,13 @@ import pytest
 import torch
 
 from clods_bench.errors import ClodsError
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.mau import MauConfig, MauPredictor
 from clods_bench.plugins.video.mau_model import MAU, MAUCell
-from clods_bench.numerics.thread_limits import torch_threads
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary
 
 CI = MauConfig(context_frames=5, hidden=14, num_layers=4, kernel=3, downsamples=2, train_steps=250, batch_size=8, learning_rate=1e-3)
-"""The ci preset's MAU widths (clods_bench/benchmark/presets/ci.yaml), trained 250 steps: a length whose schedule
+"""The ci preset's MAU widths (clods_bench/benchmark/core/presets/ci.yaml), trained 250 steps: a length whose schedule
 the test below works out by hand."""
 
 

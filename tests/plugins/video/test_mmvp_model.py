@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from clods_bench.benchmark.config import load_config
+from clods_bench.benchmark.core.config import load_config
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.video.mmvp import MmvpConfig, MmvpPredictor
 from clods_bench.plugins.video.mmvp_model import MMVP

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clods_bench.benchmark.image_metrics import psnr
-from clods_bench.benchmark.interfaces import FitContext, VideoPredictor
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.interfaces import FitContext, VideoPredictor
+from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.scoring.image_metrics import psnr
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.video.copylast import CopyLastPredictor
 from clods_bench.plugins.video.simvp import CHECKPOINT_FILE, SimvpConfig, SimvpPredictor

@@ -8,13 +8,13 @@ import pytest
 import torch
 
 from clods_bench.errors import ClodsError
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.simvp import SimvpConfig, SimvpPredictor
 from clods_bench.plugins.video.simvp_model import SimVP, Translator
-from clods_bench.numerics.thread_limits import torch_threads
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary
 
 CI = SimvpConfig(context_frames=5, hid_s=16, hid_t=64, enc_layers=4, trans_layers=4, kernels=[3, 5, 7], groups=4)
-"""The ci preset's SimVP widths (clods_bench/benchmark/presets/ci.yaml)."""
+"""The ci preset's SimVP widths (clods_bench/benchmark/core/presets/ci.yaml)."""
 
 
 def test_translator_is_simvp_v1s_unet() -> None:

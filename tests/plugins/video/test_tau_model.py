@@ -13,14 +13,14 @@ import torch
 from torch import nn
 
 from clods_bench.errors import ClodsError
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.video.tau import TauConfig, TauPredictor
 from clods_bench.plugins.video.tau_blocks import DropPath, TemporalAttentionModule, drop_path_rates, lka_kernels
 from clods_bench.plugins.video.tau_model import TAU, differential_divergence
-from clods_bench.numerics.thread_limits import torch_threads
 from tests.plugins.video.fingerprint import assert_summary, fixed_input, set_weights, summary
 
 CI = TauConfig(context_frames=5, hid_s=16, hid_t=52, enc_layers=4, trans_layers=4)
-"""The ci preset's TAU widths (clods_bench/benchmark/presets/ci.yaml)."""
+"""The ci preset's TAU widths (clods_bench/benchmark/core/presets/ci.yaml)."""
 
 
 def test_kernel_decomposition_follows_the_tau_rule() -> None:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext, VideoPredictor
-from clods_bench.benchmark.registry import default_registry
+from clods_bench.benchmark.core.interfaces import FitContext, VideoPredictor
+from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.video.mau import MauConfig, MauPredictor
 from clods_bench.plugins.video.mmvp import MmvpConfig, MmvpPredictor

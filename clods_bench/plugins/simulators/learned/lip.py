@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, Topology

@@ -24,10 +24,11 @@ import torch
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from clods_bench.atomic import write_json
-from clods_bench.benchmark.interfaces import FitContext, RolloutInput
+from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput
 from clods_bench.datasets.types import NORMAL, Trajectory
 from clods_bench.devices import torch_device
 from clods_bench.errors import ClodsError
+from clods_bench.numerics.thread_limits import torch_threads
 from clods_bench.plugins.simulators.learned.checkpoint import (
     list_snapshots,
     load_checkpoint,
@@ -40,7 +41,6 @@ from clods_bench.plugins.simulators.learned.config import LearnedConfig
 from clods_bench.plugins.simulators.learned.graph import GraphSpec, TopologyCache
 from clods_bench.plugins.simulators.learned.model import LearnedModel, ProcessorFactory
 from clods_bench.plugins.simulators.learned.trainer import Trainer, TrainingData
-from clods_bench.numerics.thread_limits import torch_threads
 
 DT_RTOL = 1e-6
 

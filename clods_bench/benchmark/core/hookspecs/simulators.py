@@ -1,0 +1,20 @@
+"""Hook specification: simulator plugins."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Sequence
+
+from clods_bench.benchmark.core.hookspecs import hookspec
+
+if TYPE_CHECKING:
+    from clods_bench.benchmark.core.descriptors import PluginSpec
+
+
+@hookspec
+def clods_bench_simulators() -> Sequence["PluginSpec"]:
+    """Return the simulators this plugin provides.
+
+    Each `PluginSpec.build(config, context)` must return an object satisfying
+    `clods_bench.benchmark.core.interfaces.Simulator`. All implementations are called
+    and their lists concatenated; a name provided twice is an error.
+    """

@@ -1,0 +1,1 @@
+"""Running a task over its seeds, locally or on Ray, and the run records it leaves."""

@@ -1,0 +1,1 @@
+"""The `clods-bench bench` speed benchmarks and the deterministic-mode probe fits."""
