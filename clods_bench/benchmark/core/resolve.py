@@ -52,6 +52,9 @@ def resolve_plugins(cfg: RunConfig, registry: Registry) -> RunConfig:
     task = registry.get("task", cfg.task)
     registry.get("scene", cfg.data.scene)
     task_datasets(cfg, registry)  # e.g. CDG's eval_data: its fields and scene
+    from clods_bench.benchmark.core.device_switch import apply_device  # (it reads PLUGIN_KINDS from here)
+
+    cfg = apply_device(cfg, registry)  # the run's device into the options of its plugins and stages
     changes: dict[str, dict[str, dict[str, Any]]] = {}
     for kind in PLUGIN_KINDS:
         name = getattr(cfg, kind.field)
