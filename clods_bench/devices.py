@@ -1,4 +1,5 @@
-"""The `device` option of trainable plugins (learned simulators, video predictors): its check and its torch device.
+"""The `device` option of trainable plugins (learned simulators, video predictors): its check and its torch device;
+and the run's device (`--device`: 'auto' decided, a GPU that is not there named in one line).
 
 One rule for every config that has the option: 'cpu', 'cuda' or 'cuda:N'; asking for CUDA where torch sees none is
 one ClodsError naming the field, raised before anything is trained or written.

@@ -41,8 +41,9 @@ PLUGIN_KINDS: tuple[PluginKind, ...] = (
 
 
 def resolve_plugins(cfg: RunConfig, registry: Registry) -> RunConfig:
-    """`cfg` checked (task, scene, the task's extra datasets, the plugins it needs and names) and with the complete
-    options of every plugin it names (its config dataclass, defaults filled in); fails before any work.
+    """`cfg` checked (task, scene, the task's extra datasets, the plugins it needs and names), its `device` written
+    into the options that can take it (`device_switch`), and with the complete options of every plugin it names (its
+    config dataclass, defaults filled in); fails before any work.
 
     What a run saves (config.yaml) and what names its record directory then includes the plugins' defaults: a changed
     default gives a new record instead of silently reusing one made with the old value. Idempotent; plugins the run
