@@ -64,6 +64,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.core.config import load_config
     from clods_bench.benchmark.reproduction.reproduce import reproduce, run_name, run_overrides
     from clods_bench.benchmark.running.executors import default_jobs
+    from clods_bench.devices import resolve_device
 
     out = args.out or Path("results") / args.preset
     if args.check is not None and out.resolve() == args.check.resolve():
@@ -73,11 +74,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         device = load_config(args.preset, None, overrides).device  # --device, or the preset's device: every run's
     except ClodsError:
         device = "cpu"  # a bad override: the plan's check below names it, with every other problem
+    where = "--device" if args.device else "device"
     if device != "cpu":
-        report_device(device, "--device" if args.device else "device", [cfg for _, cfg in _plan_runs(args, overrides)], plugin_registry(), args.executor)
+        resolve_device(device, where, check=args.executor != "ray")  # a GPU that is not there: one line, before the plan
+    runs = _plan_runs(args, overrides) if device != "cpu" or args.dry_run else []
+    if device != "cpu":
+        report_device(device, where, [cfg for _, cfg in runs], plugin_registry(), args.executor)
     if args.dry_run:
         registry = plugin_registry()
-        runs = _plan_runs(args, overrides)
         table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
         for col in ("table / label", "task", "plugins", "seeds", "done", "overrides"):
             table.add_column(col)

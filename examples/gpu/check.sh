@@ -27,7 +27,7 @@ cd "$(dirname "$0")/../.." || exit 2
 DEVICE=${DEVICE:-cuda}
 PYTHON=${PYTHON:-python3}
 CLODS_BENCH=${CLODS_BENCH:-clods-bench}
-export PYTHONUNBUFFERED=1 COLUMNS=${COLUMNS:-160}  # rich draws its tables this wide in the logs
+export PYTHONUNBUFFERED=1 COLUMNS=${COLUMNS:-160} MAX_JOBS=${MAX_JOBS:-$(nproc)}  # rich's tables this wide in the logs; gsplat's build on every core
 SUMMARY="examples/gpu/check_summary.py"
 if [ -z "${RESULTS:-}" ]; then
   RESULTS=$($PYTHON "$SUMMARY" folder --device "$DEVICE") || exit 2
