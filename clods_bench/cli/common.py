@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from rich.console import Console
 
@@ -39,3 +39,28 @@ def run_config(args: argparse.Namespace, **fields: Any) -> Any:
         overrides.append("progress=false")
     return load_config(args.preset, args.config, overrides, **fields)
 
+
+
+DEVICE_HELP = ("where the run computes: cpu, cuda, cuda:N, or auto (a CUDA GPU when torch sees one); written into every "
+               "plugin and stage that can use it (their device option, and backend gsplat for the splatting renderers and "
+               "stage 0), except options set with --set; default: the preset's device (cpu)")  # fmt: skip
+
+
+def add_device_arg(p: argparse.ArgumentParser) -> None:
+    """The `--device` option of the commands that run tasks."""
+    p.add_argument("--device", help=DEVICE_HELP)
+
+
+def report_device(requested: str, where: str, configs: Sequence[Any], registry: Any, executor: str = "local") -> None:
+    """Before any work: a device that does not exist here is one ClodsError (not checked on Ray, whose workers hold
+    the GPUs); then what runs on the device and a note for each plugin or stage it does not reach (`device_switch`)."""
+    if requested == "cpu":
+        return
+    from clods_bench.benchmark.core.device_switch import device_report
+    from clods_bench.benchmark.core.resolve import resolve_plugins
+    from clods_bench.devices import resolve_device
+
+    resolve_device(requested, where, check=executor != "ray")
+    resolved = [resolve_plugins(cfg, registry) for cfg in configs]
+    for line in device_report(resolved, registry, explicit=requested != "auto"):
+        err_console.print(line, highlight=False, markup=False)

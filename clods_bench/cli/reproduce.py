@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 from rich.table import Table
 
-from clods_bench.cli.common import console, err_console, plugin_registry
+from clods_bench.cli.common import add_device_arg, console, err_console, plugin_registry, report_device
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -29,6 +29,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
     p.add_argument("--only", nargs="+", default=[], metavar="TABLE", help="only these table ids of the plan")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override applied to every run")
+    add_device_arg(p)
     p.add_argument("--check", type=Path, metavar="DIR", help="then compare the fresh CSVs with the committed ones in DIR (exit 1 on a moved number)")
     p.add_argument(
         "--first-seeds",
@@ -60,20 +61,27 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.reproduction.reproduce import build_configs, load_plan, reproduce, run_name, run_overrides
+    from clods_bench.benchmark.core.config import load_config
+    from clods_bench.benchmark.reproduction.reproduce import reproduce, run_name, run_overrides
     from clods_bench.benchmark.running.executors import default_jobs
+    from clods_bench.devices import resolve_device
 
     out = args.out or Path("results") / args.preset
     if args.check is not None and out.resolve() == args.check.resolve():
         raise ClodsError("--check compares fresh tables with committed ones: they cannot be the same folder", where=str(out), hint="write the fresh ones elsewhere with --out")
-    overrides = [*args.overrides, *(["progress=false"] if args.no_progress else [])]
+    overrides = [*([f"device={args.device}"] if args.device else []), *args.overrides, *(["progress=false"] if args.no_progress else [])]
+    try:
+        device = load_config(args.preset, None, overrides).device  # --device, or the preset's device: every run's
+    except ClodsError:
+        device = "cpu"  # a bad override: the plan's check below names it, with every other problem
+    where = "--device" if args.device else "device"
+    if device != "cpu":
+        resolve_device(device, where, check=args.executor != "ray")  # a GPU that is not there: one line, before the plan
+    runs = _plan_runs(args, overrides) if device != "cpu" or args.dry_run else []
+    if device != "cpu":
+        report_device(device, where, [cfg for _, cfg in runs], plugin_registry(), args.executor)
     if args.dry_run:
-        plan = load_plan(args.plan)
-        if args.only:
-            plan.runs = [r for r in plan.runs if r.table in args.only]
-            plan.tables = [t for t in plan.tables if t.id in args.only]
         registry = plugin_registry()
-        runs = build_configs(plan, args.preset, registry, overrides, first_seeds=args.first_seeds)
         table = Table(title=f"reproduce plan, preset {args.preset}: {len(runs)} runs")
         for col in ("table / label", "task", "plugins", "seeds", "done", "overrides"):
             table.add_column(col)
@@ -108,6 +116,17 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return _report_check(args.check, out, [t for t in manifest["tables"] if t not in unfinished], args.first_seeds, args.preset,
                              not_run=sorted(unfinished))  # fmt: skip
     return 0
+
+
+def _plan_runs(args: argparse.Namespace, overrides: Sequence[str]) -> list[tuple[Any, RunConfig]]:
+    """The (plan row, resolved config) of every run `reproduce` would run (its `--plan`, `--only` and seeds)."""
+    from clods_bench.benchmark.reproduction.reproduce import build_configs, load_plan
+
+    plan = load_plan(args.plan)
+    if args.only:
+        plan.runs = [r for r in plan.runs if r.table in args.only]
+        plan.tables = [t for t in plan.tables if t.id in args.only]
+    return build_configs(plan, args.preset, plugin_registry(), overrides, first_seeds=args.first_seeds)
 
 
 def _report_check(committed: Path, fresh: Path, tables: Sequence[str], first_seeds: int | None, preset: str, not_run: Sequence[str] = ()) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from rich.table import Table
 
-from clods_bench.cli.common import add_config_args, console, err_console, plugin_registry, run_config
+from clods_bench.cli.common import add_config_args, add_device_arg, console, err_console, plugin_registry, report_device, run_config
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +25,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="local executor: seeds run in this many worker processes (default: one per core, at most one per seed; "
                         "the numbers are the same for any count)")  # fmt: skip
     p.add_argument("--ray-address", help="Ray cluster address (default: start a local one)")
+    add_device_arg(p)
     add_config_args(p)
     p.set_defaults(func=cmd_run)
 
@@ -33,7 +34,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from clods_bench.benchmark.running.records import RECORD_FILE
     from clods_bench.benchmark.running.runner import run_task
 
-    cfg = run_config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds)
+    cfg = run_config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds,
+                     device=args.device)  # fmt: skip
+    report_device(cfg.device, "--device" if args.device else "device", [cfg], plugin_registry(), args.executor)
     from clods_bench.benchmark.running.executors import default_jobs, make_executor
     from clods_bench.benchmark.running.seed_jobs import run_configs
 

@@ -6,13 +6,15 @@ images of a randomised GaMeS. Timed per renderer and setup: one Adam iteration o
 views, (1-l) L1 + l D-SSIM, backward, step), and one stage-2 step (render, L1, backward to the
 vertices), each after a warm-up. Prints ms per iteration and the CPU / GPU ratio measured in this run.
 
-    python examples/gpu/paper_size_fit.py --size 800 --views 25 --iterations 10
+    python examples/gpu/paper_size_fit.py --size 800 --views 25 --iterations 10 [--json rows.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -75,6 +77,7 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=10)
     ap.add_argument("--renderers", nargs="+", default=list(RENDERERS), choices=list(RENDERERS))
     ap.add_argument("--setups", nargs="+", default=list(SETUPS), choices=list(SETUPS))
+    ap.add_argument("--json", type=Path, help="also write the rows (and the sizes) to this JSON file")
     args = ap.parse_args()
     verts, cells = wavy_flag_vertices()
     mesh_pos = np.asarray(make_flagsimple_mesh().mesh_pos, np.float64)
@@ -85,12 +88,18 @@ def main() -> None:
                         f"{torch.get_num_threads()} CPU threads" + (f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ""))  # fmt: skip
     for col in ("renderer", "setup", "fit ms / iteration", "stage-2 ms / step", "final loss", "cpu / this (fit)"):
         table.add_column(col, justify="right")
+    out = []
     for name in args.renderers:
         rows = {s: time_setup(name, SETUPS[s], verts, cells, mesh_pos, images, cameras, args.iterations) for s in args.setups}
         for s, r in rows.items():
             ratio = f"{rows['cpu']['fit_ms'] / r['fit_ms']:.1f}x" if "cpu" in rows else ""
             table.add_row(name, f"{s} ({SETUPS[s]['backend']})", f"{r['fit_ms']:.1f}", f"{r['stage2_ms']:.1f}", f"{r['loss_final']:.4f}", ratio)
+            out.append({"renderer": name, "setup": s, **SETUPS[s], **r})
     console.print(table)
+    if args.json is not None:
+        sizes = {"views": args.views, "size": args.size, "iterations": args.iterations, "cpu_threads": torch.get_num_threads(),
+                 "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None}  # fmt: skip
+        args.json.write_text(json.dumps({**sizes, "rows": out}, indent=1))
 
 
 if __name__ == "__main__":

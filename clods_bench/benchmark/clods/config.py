@@ -146,6 +146,16 @@ class ClodsConfig:
         return d
 
 
+def clods_device_options(cfg: RunConfig) -> dict[str, type]:
+    """The CloDS rows' `TaskSpec.device_options`: stage 0's options (`task_config.clods.stage0`, its surfel backend)
+    when the run fits a renderer from the reconstructed initial mesh; stages 1-2 follow the renderer, 3 the simulator."""
+    from clods_bench.benchmark.clods.stage0 import Stage0Config
+
+    clods = cfg.task_config.get("clods")
+    reconstructed = isinstance(clods, dict) and clods.get("initial_mesh") == "reconstructed"
+    return {"clods.stage0": Stage0Config} if cfg.renderer and reconstructed else {}
+
+
 def clods_config(cfg: RunConfig) -> ClodsConfig:
     """The run's `task_config.clods` as a checked ClodsConfig."""
     raw = dict(cfg.task_config.get("clods", {}))

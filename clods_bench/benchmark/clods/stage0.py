@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 import torch
@@ -52,7 +52,7 @@ class Stage0Config:
     """Weight of the D-SSIM term of the surfel fit (2DGS uses 0.2; at ci it triples the time and changes nothing)."""
     seed: int = 0
     """Seed of the surfel initialisation and the hull sampling."""
-    backend: str = "cpu"
+    backend: Literal["cpu", "gsplat"] = "cpu"
     """Surfel renderer of the fit: 'cpu' (numba) or 'gsplat' (gsplat's 2DGS kernels on a CUDA GPU; depth is then
     each surfel's centre depth, see `splatting/surfel_gsplat.py`)."""
     sheet: str = "isomap"

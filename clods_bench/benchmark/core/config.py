@@ -58,6 +58,11 @@ class RunConfig:
     """Directory of run records."""
     progress: bool = True
     """Show progress bars."""
+    device: str = "cpu"
+    """Where the run computes: cpu, cuda, cuda:N, or auto (a CUDA GPU when torch sees one, else the CPU); `--device`.
+    It is written into the options of every plugin and stage of the run that can use it (`device`, and backend
+    'gsplat' for the splatting renderers and stage 0), except fields set by hand (`benchmark/core/device_switch.py`).
+    Not part of the record's identity: the plugins' options it reaches are."""
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

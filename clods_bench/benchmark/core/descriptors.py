@@ -40,6 +40,10 @@ class PluginSpec:
     build: Callable[[Any, BuildContext], Any]
     config_cls: type = EmptyConfig
     learned: bool = False
+    devices: tuple[str, ...] | None = None
+    """Device kinds the plugin runs on ('cpu', 'cuda'); None: 'cpu', and 'cuda' too when its config has a `device`
+    option. The run's `device` (`--device`) reaches the plugin only for a kind listed here: one that lists 'cpu'
+    alone stays on the CPU (the run names it), and its `device` option set to another kind is an error."""
 
     def make_config(self, values: Mapping[str, Any], where: str) -> Any:
         """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys."""
@@ -103,6 +107,10 @@ class TaskSpec:
     row_label: Callable[[Any], str | None] | None = None
     """(RunConfig) -> the row label of a run given no `label`, or None for the default: the plugin names joined by
     '+', with '*' for the first-half training subset (CDG labels its CloDS rows 'CloDS**', 'CloDS*', 'CloDS')."""
+    device_options: Callable[[Any], Mapping[str, type]] | None = None
+    """(RunConfig) -> the task's own option sections that the run's `device` reaches: dotted paths below
+    `task_config` (e.g. 'clods.stage0') mapped to their config dataclass, which gets `device` and a 'gsplat' `backend`
+    where it has them, as a plugin's config does. None: the task's options take no device."""
 
 
 def spec_fields(cls: type) -> list[dataclasses.Field]:

@@ -48,6 +48,7 @@ def record_dir(cfg: RunConfig, registry: Registry) -> Path:
     ident = cfg.to_dict()
     for key in ("seeds", "progress", "runs_dir"):
         ident.pop(key)
+    ident.pop("device", None)  # where it computes is in the options of the plugins it reaches (device_switch)
     ident["data"].pop("root")
     if ident["data"].get("path") is None:  # added with imported datasets: left out when unused, records keep their digest
         ident["data"].pop("path", None)

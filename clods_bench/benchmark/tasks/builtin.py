@@ -3,6 +3,7 @@ its table layout (the paper's, or one column per metric) and, for CDG, the label
 
 from __future__ import annotations
 
+from clods_bench.benchmark.clods.config import clods_device_options
 from clods_bench.benchmark.core.descriptors import TableLayout, TaskSpec
 from clods_bench.benchmark.core.eval_data import extra_datasets
 from clods_bench.benchmark.core.hookspecs import hookimpl
@@ -14,7 +15,7 @@ from clods_bench.benchmark.tasks.cdg import cdg_row_label, run_cdg
 from clods_bench.benchmark.tasks.dvc import run_dvc
 from clods_bench.benchmark.tasks.dvc_multi import run_dvc_multi
 from clods_bench.benchmark.tasks.extract import run_extract
-from clods_bench.benchmark.tasks.initial_mesh import run_initial_mesh
+from clods_bench.benchmark.tasks.initial_mesh import initial_mesh_device_options, run_initial_mesh
 from clods_bench.benchmark.tasks.nvs import run_nvs
 from clods_bench.benchmark.tasks.stability import run_stability
 
@@ -30,6 +31,7 @@ def clods_bench_tasks() -> list[TaskSpec]:
             datasets=extra_datasets,
             table=TableLayout(frame=cdg_frame, caption=cdg_caption),
             row_label=cdg_row_label,
+            device_options=clods_device_options,
         ),
         TaskSpec(
             name="nvs",
@@ -50,12 +52,14 @@ def clods_bench_tasks() -> list[TaskSpec]:
             description="DVC forward / video prediction: a video predictor (--predictor) or a simulator rolled out and rendered (--sim --renderer); PSNR/SSIM/LPIPS/RMSE (Table 4).",
             run=run_dvc,
             table=TableLayout(frame=dvc_frame, caption=dvc_caption),
+            device_options=clods_device_options,
         ),
         TaskSpec(
             name="dvc_multi",
             description="Video prediction trained on several trajectories: Extrapolation (their last frames) and Generalization (unseen trajectories' first frames); PSNR/SSIM/LPIPS/RMSE (appendix table).",
             run=run_dvc_multi,
             table=TableLayout(frame=dvc_multi_frame, caption=dvc_multi_caption),
+            device_options=clods_device_options,
         ),
         TaskSpec(
             name="extract",
@@ -63,11 +67,13 @@ def clods_bench_tasks() -> list[TaskSpec]:
             run=run_extract,
             needs=("renderer",),
             table=TableLayout(frame=extract_frame, caption=extract_caption),
+            device_options=clods_device_options,
         ),
         TaskSpec(
             name="initial_mesh",
             description="Initial mesh (CloDS stage 0): 2DGS + TSDF + sheet mesh from frame 0's training views; attached-point RMSE and Chamfer against the true mesh.",
             run=run_initial_mesh,
             table=TableLayout(frame=metric_frame),
+            device_options=initial_mesh_device_options,
         ),
     ]

@@ -33,6 +33,11 @@ from clods_bench.typed_config import dataclass_from_dict
 WHERE = "task_config.initial_mesh"
 
 
+def initial_mesh_device_options(cfg: Any) -> dict[str, type]:
+    """The task's `TaskSpec.device_options`: its stage-0 options (`task_config.initial_mesh`, the surfel backend)."""
+    return {"initial_mesh": Stage0Config}
+
+
 def initial_mesh_config(ctx: TaskContext) -> Stage0Config:
     """The run's `task_config.initial_mesh` as a checked Stage0Config; the run's seed seeds it unless it sets one."""
     raw = dict(ctx.config.task_config.get("initial_mesh", {}))
