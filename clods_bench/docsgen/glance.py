@@ -2,8 +2,9 @@
 
 A table whose header names `... / Avg.` columns (Table 2's layout: per group the d_avg, d(t=end) and Avg. columns) is
 shown with its label column, its Avg. columns and the columns of groups that have no Avg. (strain, times); the whole
-table follows in a `<details>` block. Every number column is right-aligned, and `mean ± std` never wraps (the spaces
-around `±` become non-breaking). The numbers themselves are the committed file's, cell for cell.
+table follows in a `<details>` block. A column of numbers is right-aligned (a text column, such as a divergence note,
+stays left-aligned and wraps), and `mean ± std` never wraps (the spaces around `±` become non-breaking). The
+numbers themselves are the committed file's, cell for cell.
 """
 
 from __future__ import annotations
@@ -16,6 +17,11 @@ WRAPPER = "clods-table"
 """CSS class of the block around every results table (docs/stylesheets/results.css styles it)."""
 
 _SPLIT = re.compile(r"(?<!\\)\|")
+_NUMBER = r"[-+]?(?:\d[\d,]*(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?%?|nan|inf|-inf"
+_NUMERIC = re.compile(rf"(?:{_NUMBER})(?:\s*±\s*(?:{_NUMBER}))?\S{{0,2}}", re.I)
+"""A number, or `mean ± std`, with at most a footnote mark after it."""
+_PLACEHOLDER = re.compile(r"|-|n/a|—|(?:diverged|unavailable|not run)\S{0,2}", re.I)
+"""A cell that holds no number in a number column (an empty cell, a diverged row, LPIPS without its weights)."""
 
 
 def split_row(line: str) -> list[str]:
@@ -53,8 +59,19 @@ def glance_columns(header: list[str]) -> list[int] | None:
     return keep if len(keep) < len(header) else None
 
 
+def numeric_columns(rows: list[list[str]]) -> set[int]:
+    """Indices of the columns (past the label column) whose every filled cell is a number or `mean ± std`."""
+    out = set()
+    for i in range(1, max((len(r) for r in rows), default=0)):
+        cells = [r[i].strip() for r in rows if i < len(r) and not _PLACEHOLDER.fullmatch(r[i].strip())]
+        if cells and all(_NUMERIC.fullmatch(c) for c in cells):
+            out.add(i)
+    return out
+
+
 def _render(header: list[str], rows: list[list[str]], columns: list[int]) -> list[str]:
-    lines = [_row([header[i] for i in columns]), _row([":---" if i == 0 else "---:" for i in columns])]
+    numbers = numeric_columns(rows)
+    lines = [_row([header[i] for i in columns]), _row(["---:" if i in numbers else ":---" for i in columns])]
     lines += [_row([r[i] if i == 0 else _cell(r[i]) for i in columns]) for r in rows]
     return lines
 

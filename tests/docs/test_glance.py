@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from clods_bench.docsgen.glance import NBSP, glance, glance_columns, split_row
+from clods_bench.docsgen.glance import NBSP, glance, glance_columns, numeric_columns, split_row
 
 TABLE = [
     "| Method | G / a / d_avg | G / a / Avg. | H / b / Avg. | Time / fit s |",
@@ -44,3 +44,11 @@ def test_a_table_without_avg_columns_is_shown_whole_and_aligned() -> None:
     out = glance(["| Model | PSNR | fit s |", "|:--|:--|--:|", "| A | 20.1 ± 0.3 | 5 |"])
     assert out == ['<div class="clods-table" markdown>', "", "| Model | PSNR | fit s |", "| :--- | ---: | ---: |",
                    f"| A | 20.1{NBSP}±{NBSP}0.3 | 5 |", "", "</div>"]  # fmt: skip
+
+
+def test_number_columns_are_right_aligned_and_text_columns_left() -> None:
+    rows = [["A", "flag", "0.23 ± 0.01", "frame 10 (4/4 rollouts): strain 0.5", "12.5", "unavailable¹"],
+            ["B", "storm", "diverged", "stable", "1,000", "0.31"]]  # fmt: skip
+    assert numeric_columns(rows) == {2, 4, 5}
+    out = glance(["| M | Scene | RMSE | Divergence | ms | LPIPS |", "|:--|:--|:--|:--|--:|:--|", *(f"| {' | '.join(r)} |" for r in rows)])
+    assert out[3] == "| :--- | :--- | ---: | :--- | ---: | ---: |"
