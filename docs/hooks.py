@@ -1,7 +1,7 @@
 """MkDocs hooks of the clods-bench site: the generated pages and blocks (`clods_bench.docsgen`).
 
 - `on_files`: adds the CLI reference (from the parser), the results pages and their CSV, LaTeX and picture files
-  (from `results/`), and puts the table pages into the navigation;
+  (from `results/`; figures drawn from committed data are drawn here), and puts the table pages into the navigation;
 - `on_page_markdown`: rewrites every `<!-- generated:NAME -->` block, so a page built from a checkout whose
   committed blocks are stale still shows the current numbers (the docs tests fail on the stale copy).
 A missing table file, a picture without its command or a stale claim stops the build with one error naming the
@@ -44,6 +44,11 @@ def on_files(files: Files, config: Any) -> Files:
     for g in generated:
         if g.text is not None:
             files.append(File.generated(config, g.path, content=g.text))
+        elif g.draw is not None:
+            try:
+                files.append(File.generated(config, g.path, content=g.draw()))
+            except ClodsError as exc:
+                raise PluginError(f"results pages: {exc.message}") from None
         else:
             files.append(File.generated(config, g.path, abs_src_path=str(g.source)))
     nav = config.nav or []

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
-from clods_bench.docsgen.sources import as_list, field, load_yaml, where
+from clods_bench.docsgen.figures import Plot, plot_entry, rendered
+from clods_bench.docsgen.glance import glance
+from clods_bench.docsgen.sources import field, load_yaml, where
 from clods_bench.errors import ClodsError
 
 PLAN_FILE = Path("clods_bench/benchmark/reproduction/plans/reproduce.yaml")
@@ -24,13 +27,19 @@ TASK_PAGES = {
 """The hand-written page that explains each task's metrics."""
 
 
+WIDE_PAGE = "---\nhide:\n  - toc\n---\n\n"
+"""Front matter of the table and plot pages: no table of contents beside them, so their tables get its width."""
+
+
 @dataclass(frozen=True)
 class Generated:
-    """A file of the site: markdown `text`, or a copy of `source` (a CSV, LaTeX table or picture)."""
+    """A file of the site: markdown `text`, a copy of `source` (a CSV, LaTeX table or picture), or a picture that
+    `draw()` makes from committed data when the site is built."""
 
     path: str
     text: str | None = None
     source: Path | None = None
+    draw: Callable[[], bytes] | None = None
 
 
 @dataclass(frozen=True)
@@ -55,7 +64,7 @@ def _table_body(md: Path) -> list[str]:
     lines = md.read_text().strip().splitlines()
     caption = lines[0].strip() if lines and not lines[0].startswith("|") else ""
     body = lines[1:] if caption else lines
-    return ([f"*{caption}*", ""] if caption else []) + [line for line in body if line.strip() or not body]
+    return ([f"*{caption}*", ""] if caption else []) + glance([line for line in body if line.strip() or not body])
 
 
 def _code(command: str) -> list[str]:
@@ -106,8 +115,34 @@ def small_entries(root: Path) -> list[dict[str, Any]]:
     return entries
 
 
+def _figure(plot: Plot, link: str) -> list[str]:
+    """A picture that opens at full size when clicked (docs/javascripts/results.js zooms it in place)."""
+    return ['<div class="clods-figure" markdown>', "", f"[![{plot.title}]({link})]({link})", "", "</div>", ""]
+
+
+def _plot_section(plot: Plot, link: str, level: str) -> list[str]:
+    return [f"{level} {plot.title}", "", *_figure(plot, link), plot.caption, "", *_code(plot.made_by), ""]
+
+
+def plots(root: Path) -> list[Plot]:
+    """Every picture of the sources file, checked; a PNG under `results/` that is neither shown nor drawn from is an error."""
+    path = root / SOURCES_FILE
+    entries = [plot_entry(root, path, p) for p in field(load_yaml(path), "plots", path, list)]
+    listed = {p.file for p in entries if p.file} | {f for p in entries for f in p.inputs}
+    unlisted = sorted(str(p.relative_to(root)) for p in (root / "results").rglob("*.png") if p not in listed)
+    if unlisted:
+        raise ClodsError(f"no entry for {', '.join(unlisted)}", where=f"{path}: plots", hint="say what each picture shows and the command that made it")
+    return entries
+
+
+def _picture(plot: Plot) -> Generated:
+    if plot.draw is None:
+        return Generated(f"results/{plot.site}", source=plot.file)
+    return Generated(f"results/{plot.site}", draw=partial(rendered, plot))
+
+
 def table_pages(root: Path) -> list[Generated]:
-    """One page per table of the plan: the `ci` table (which must exist) and the `small` ones."""
+    """One page per table of the plan: the `ci` table (which must exist), the `small` ones and the table's plots."""
     path = root / SOURCES_FILE
     doc = load_yaml(path)
     ci = field(doc, "ci", path, dict)
@@ -116,13 +151,15 @@ def table_pages(root: Path) -> list[Generated]:
     manifest = json.loads(manifest_file.read_text()) if manifest_file.is_file() else {}
     small = small_entries(root)
     small_dir = root / doc["small"]["folder"]
+    all_plots = plots(root)
     out: list[Generated] = []
     for t in plan_tables(root):
         md = ci_dir / f"{t.id}.md"
         if not md.is_file():
             raise ClodsError(f"table '{t.id}' has no committed file {md.relative_to(root)}", where=t.where,
                              hint=f"make it with `{ci['one_table'].format(table=t.id)}`")  # fmt: skip
-        lines = [f"# {t.title}", "", f"Task `{t.task}`: what it measures and how each metric is computed is on [its page](../{TASK_PAGES.get(t.task, 'tasks/index.md')}).", ""]
+        lines = [f"# {t.title}", "", f"Task `{t.task}`: what it measures and how each metric is computed is on [its page](../{TASK_PAGES.get(t.task, 'tasks/index.md')}). "
+                 "Tables show their Avg. columns; *All columns* opens the whole table. Click a plot to zoom.", ""]  # fmt: skip
         copies = _copies(ci_dir / t.id, "ci", t.id)
         lines += ["## At `ci`: a regression fixture", "", *_table_body(md), "", "Made by (the whole plan, or this table alone):", ""]
         lines += [*_code(f"{ci['made_by']}\n{ci['one_table'].format(table=t.id)}"), "", _downloads(copies), ""]
@@ -139,31 +176,25 @@ def table_pages(root: Path) -> list[Generated]:
             lines += [f"### `{e['file']}`", ""] + ([e["note"], ""] if e.get("note") else [])
             lines += [*_table_body(stem.with_suffix(".md")), "", "Made by:", "", *_code(e["made_by"]), ""] + ([_downloads(files), ""] if files else [])
             copies += files
-        out.append(Generated(f"results/{t.id}.md", "\n".join(lines).rstrip() + "\n"))
+        mine_plots = [p for p in all_plots if p.table == t.id]
+        if mine_plots:
+            lines += ["## Plots", ""]
+        for plot in mine_plots:
+            lines += _plot_section(plot, plot.site, "###")
+        out.append(Generated(f"results/{t.id}.md", WIDE_PAGE + "\n".join(lines).rstrip() + "\n"))
         out += [Generated(f"results/{dst}", source=src) for src, dst in copies]
     return out
 
 
 def plot_pages(root: Path) -> list[Generated]:
-    """The page of every picture under `results/`, each with its command; a picture without an entry is an error."""
-    path = root / SOURCES_FILE
-    plots = field(load_yaml(path), "plots", path, list)
-    listed = set()
-    lines = ["# Plots", "", "Every picture committed under `results/`, with the command that made it.", ""]
-    out: list[Generated] = []
-    for p in plots:
-        rel = field(p, "file", path)
-        src = root / rel
-        if not src.is_file():
-            raise ClodsError(f"picture {rel} is missing", where=where(path, p))
-        listed.add(rel)
-        site = "plots/" + rel.removeprefix("results/").replace("/", "_")
-        out.append(Generated(f"results/{site}", source=src))
-        lines += [f"## {field(p, 'title', path)}", "", f"![{rel}]({site})", "", field(p, "caption", path), "", *_code(field(p, "made_by", path)), ""]
-    unlisted = sorted(str(p.relative_to(root)) for p in (root / "results").rglob("*.png") if str(p.relative_to(root)) not in listed)
-    if unlisted:
-        raise ClodsError(f"no entry for {', '.join(unlisted)}", where=f"{path}: plots", hint="say what each picture shows and the command that made it")
-    return [Generated("results/plots.md", "\n".join(lines).rstrip() + "\n"), *out]
+    """The page of every picture under `results/` (and every figure drawn from them), each with its command, and the
+    pictures themselves; a picture without an entry is an error."""
+    entries = plots(root)
+    lines = ["# Plots", "", "Every picture committed under `results/` or drawn from its files when the site is built, with the command "
+             "that made it; click a plot to zoom. A plot of a table is also on that table's page.", ""]  # fmt: skip
+    for plot in entries:
+        lines += _plot_section(plot, plot.site, "##")
+    return [Generated("results/plots.md", WIDE_PAGE + "\n".join(lines).rstrip() + "\n"), *(_picture(p) for p in entries)]
 
 
 def nav_entries(root: Path) -> list[dict[str, str]]:

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The video-prediction rows that need a GPU at `small`: Table 4's pixel-space predictors, one after another
-# (packing them on one GPU gained nothing on the sixth visit), seed 0, through `reproduce` so the records are the
+# (packing them on one GPU gained nothing: results/gpu_h200/README.md, 2026-11-27), seed 0, through `reproduce` so the records are the
 # plan's. Resumable: a second call on the same warm machine continues from the checkpoints (every 500 steps).
 #
 #   NO_GSPLAT=1 source examples/gpu/device_setup.sh || exit 1; PREDICTORS=simvp LIMIT=520 bash examples/gpu/video_rows_small.sh
@@ -9,7 +9,7 @@
 # PREDICTORS (default "simvp mau") are plugin names; TABLE is table4_dvc (single-trajectory, Table 4) or table_dvc_multi
 # (trained on several trajectories); LIMIT (seconds) stops training in time to pack the records. Writes to $OUT
 # (default video-rows; DATA_ROOT, default $WORK/data, where the dataset is made or found): the log, the run records (result.json, tables, grids; no checkpoints) as records.tar, and the
-# tables of what finished. On the H200 (fifth visit): SimVP 0.137 s a step (3,000 steps: 411 s), MAU 0.331 s (993 s).
+# tables of what finished. On one H200 (2026-11-27): SimVP 0.137 s a step (3,000 steps: 411 s), MAU 0.331 s (993 s).
 set -uo pipefail
 OUT=${OUT:-video-rows}
 DEVICE=${DEVICE:-cuda}

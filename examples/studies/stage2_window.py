@@ -1,7 +1,8 @@
 """Stage 2 on a window of frames of one trajectory, started from the true meshes, to see where and why tracking fails.
 
-The paper trajectory on the H200 (README, "On a GPU", fifth visit) lost the cloth after frame 222, after the fastest
-motion of the video. This script fits frames START+1..END of trajectory 0 of a dataset with the stage-1 renderer a
+The paper trajectory on one H200 (2026-11-27, results/gpu_h200/2026-11-27-paper-trajectory-and-video-bench/) lost
+the cloth after frame 222, after the fastest motion of the video. This script fits frames START+1..END of trajectory 0
+of a dataset with the stage-1 renderer a
 CloDS run cached (`<runs_dir>/clods_cache/stage1-*.pt`), starting from the TRUE meshes of frames START-1 and START
 (so drift from earlier frames is ruled out), on the training cameras, and prints each frame's E-GT (the RMS of the
 nodes' distances to the true mesh, m: sqrt(3) times the per-coordinate RMSE that `run extract` reports; kept so that

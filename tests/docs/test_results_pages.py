@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.docsgen.results_pages import nav_entries, plan_tables, plot_pages, results_pages, table_pages
+from clods_bench.docsgen.results_pages import nav_entries, plan_tables, plot_pages, plots, results_pages, table_pages
 from clods_bench.errors import ClodsError
 from tests.docs.pages import ROOT
 
@@ -30,8 +30,43 @@ def test_every_small_table_and_picture_is_on_a_page() -> None:
     for md in (ROOT / "results/small-partial").rglob("*.md"):
         if md.name != "README.md":
             assert f"`{md.relative_to(ROOT / 'results/small-partial').with_suffix('')}`" in text, md
-    copied = {g.source for g in plot_pages(ROOT) if g.source}
-    assert copied == set((ROOT / "results").rglob("*.png"))
+    shown = {p.file for p in plots(ROOT) if p.file} | {f for p in plots(ROOT) for f in p.inputs if f.suffix == ".png"}
+    assert shown == set((ROOT / "results").rglob("*.png"))
+    pictures = {g.path: g for g in plot_pages(ROOT) if g.text is None}
+    assert {g.source for g in pictures.values() if g.source} == {p.file for p in plots(ROOT) if p.file and p.draw is None}
+    for g in pictures.values():
+        if g.draw is not None:  # a figure drawn from committed files: a real PNG
+            png = g.draw()
+            assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000, g.path
+
+
+def test_each_table_page_holds_its_plots_and_every_plot_is_on_the_plots_page() -> None:
+    pages = {g.path: g.text for g in results_pages(ROOT) if g.text}
+    tables = {t.id for t in plan_tables(ROOT)}
+    by_table: dict[str, list[str]] = {}
+    for p in plots(ROOT):
+        assert f"[![{p.title}]({p.site})]({p.site})" in pages["results/plots.md"], p.title  # a click opens the full size
+        if p.table is not None:
+            assert p.table in tables, p.table
+            by_table.setdefault(p.table, []).append(p.site)
+    assert {"error_vs_time", "stability", "table4_dvc"} <= set(by_table)
+    for table, sites in by_table.items():
+        page = pages[f"results/{table}.md"]
+        assert "## Plots" in page and all(f"]({site})" in page for site in sites), table
+
+
+def test_table_pages_show_the_avg_columns_with_every_column_behind_a_toggle() -> None:
+    page = {g.path: g.text for g in results_pages(ROOT) if g.text}["results/table2_cdg.md"]
+    assert page.startswith("---\nhide:\n  - toc\n---\n")  # the table gets the table of contents' width
+    glance_header = ("| Method | Viewed / Interpolation / Avg. | Viewed / Extrapolation / Avg. | Unviewed / Interpolation / Avg. | "
+                     "Unviewed / Extrapolation / Avg. | Stability / max edge strain | Time / infer ms/step | Time / fit s |")  # fmt: skip
+    assert glance_header in page
+    assert '<details class="clods-table-all" markdown>\n<summary>All 15 columns</summary>' in page
+    with (ROOT / "results/ci/table2_cdg.csv").open(newline="") as fh:
+        physics = next(r for r in csv.DictReader(fh) if r["method"] == "Physics")
+    avg = f"{float(physics['viewed/interp/avg/mean']):.4f}\u00a0±\u00a0{float(physics['viewed/interp/avg/std']):.4f}"
+    assert page.count(avg) == 2  # at a glance and in the whole table: the committed number, on one line
+    assert not [line for line in page.splitlines() if line.startswith("|") and " ± " in line]
 
 
 def test_each_small_file_is_copied_to_its_own_place_on_the_site() -> None:

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from clods_bench.atomic import atomic_path, write_text
+from clods_bench.atomic import write_text
+from clods_bench.benchmark.outputs.figure_style import FONT_PT, WIDTH_IN, log_ticks, metric_words, page_style, pyplot, save_png, value_axis
 from clods_bench.benchmark.outputs.training_curves import write_training_curves
 from clods_bench.benchmark.running.records import iter_records, load_seed_result
 from clods_bench.errors import ClodsError
@@ -87,55 +88,58 @@ def mean_curves(rdir: Path, rec: dict[str, Any]) -> dict[str, np.ndarray]:
 
 
 def _save_png(fig: Any, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
+    save_png(fig, path)
 
 
 def plot_error_vs_time(points: pd.DataFrame, title: str, path: Path) -> None:
-    """Two panels (error vs inference time, error vs training time), log-log, Pareto front joined and ringed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True, layout="constrained")
-    for ax, (key, xlabel) in zip(axes, TIME_AXES):
-        ok = np.isfinite(points["rmse"]) & np.isfinite(points[key])
-        data = points[ok]
-        x = np.maximum(data[key].to_numpy(), TIME_FLOOR)
-        y = data["rmse"].to_numpy()
-        ax.errorbar(x, y, yerr=np.nan_to_num(data["rmse_std"].to_numpy()), fmt="o", color="tab:blue", capsize=3)
-        for xi, yi, label in zip(x, y, data["label"]):
-            ax.annotate(str(label), (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=8)
-        front = data[data[f"pareto_{key}"].astype(bool)].sort_values(key)
-        if len(front):
-            fx = np.maximum(front[key].to_numpy(), TIME_FLOOR)
-            ax.step(fx, front["rmse"].to_numpy(), where="post", color="tab:red", lw=1.2, label="Pareto front")
-            ax.scatter(fx, front["rmse"], s=140, facecolors="none", edgecolors="tab:red")
-            ax.legend(fontsize=8)
-        ax.set_xscale("log")
-        if (y > 0).all() and len(y):
-            ax.set_yscale("log")
-        ax.set_xlabel(xlabel + (f", < {TIME_FLOOR:g} drawn at {TIME_FLOOR:g}" if (data[key] < TIME_FLOOR).any() else ""))
-        if ax is axes[0]:
-            ax.set_ylabel(f"RMSE {points['metric'].iloc[0] if len(points) else HEADLINE} (m)")
-        ax.grid(True, which="both", alpha=0.3)
-    fig.suptitle(title)
-    _save_png(fig, path)
-    plt.close(fig)
+    """Two panels (error vs inference time, error vs training time), log time axes, Pareto front joined and ringed;
+    the error axis titled in words (`metric_words`)."""
+    plt = pyplot()
+    metric = str(points["metric"].iloc[0]) if len(points) else HEADLINE
+    with page_style():
+        fig, axes = plt.subplots(1, 2, figsize=(WIDTH_IN, 4.6), sharey=True, layout="constrained")
+        for ax, (key, xlabel) in zip(axes, TIME_AXES):
+            ok = np.isfinite(points["rmse"]) & np.isfinite(points[key])
+            data = points[ok]
+            x = np.maximum(data[key].to_numpy(), TIME_FLOOR)
+            y = data["rmse"].to_numpy()
+            ax.errorbar(x, y, yerr=np.nan_to_num(data["rmse_std"].to_numpy()), fmt="o", color="tab:blue", capsize=3)
+            for xi, yi, label in zip(x, y, data["label"]):
+                ax.annotate(str(label), (xi, yi), textcoords="offset points", xytext=(5, 4), fontsize=FONT_PT - 1)
+            front = data[data[f"pareto_{key}"].astype(bool)].sort_values(key)
+            if len(front):
+                fx = np.maximum(front[key].to_numpy(), TIME_FLOOR)
+                ax.step(fx, front["rmse"].to_numpy(), where="post", color="tab:red", lw=1.2, label="Pareto front")
+                ax.scatter(fx, front["rmse"], s=140, facecolors="none", edgecolors="tab:red")
+                ax.legend(loc="best", framealpha=0.9)
+            ax.set_xscale("log")
+            if len(x):
+                log_ticks(ax.xaxis, float(x.min()), float(x.max()))
+                ax.margins(x=0.12)
+            ax.set_xlabel(xlabel + (f"\n(< {TIME_FLOOR:g} drawn at {TIME_FLOOR:g})" if (data[key] < TIME_FLOOR).any() else ""))
+            if ax is axes[0]:
+                value_axis(ax, "y", points["rmse"])
+                words = metric_words(metric)
+                ax.set_ylabel(words.replace(", ", "\n", 1) if words != metric else f"{metric} (m)")
+            ax.grid(True, which="major", alpha=0.35)
+        fig.suptitle(title)
+        _save_png(fig, path)
+        plt.close(fig)
 
 
 def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, title: str, path: Path, ylabel: str = "RMSE (m)",
                 first_frame: int = 0) -> None:  # fmt: skip
     """Error per frame, one line per label, one panel per group; the interpolation/extrapolation boundary dashed.
     A curve's values start at `first_frame`; frames 0 and 1 (given to a rollout) are left out; log scale for RMSE."""
-    import matplotlib
+    plt = pyplot()
+    with page_style():
+        _plot_curves(plt, curves, interp, title, path, ylabel, first_frame)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+def _plot_curves(plt: Any, curves: dict[str, dict[str, np.ndarray]], interp: int | None, title: str, path: Path, ylabel: str,
+                 first_frame: int) -> None:  # fmt: skip
     groups = sorted({g for c in curves.values() for g in c}, reverse=True)  # viewed, unviewed (the paper's column order)
-    fig, axes = plt.subplots(1, max(len(groups), 1), figsize=(5.5 * max(len(groups), 1), 4.2), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(1, max(len(groups), 1), figsize=(WIDTH_IN, 4.4), squeeze=False, sharey=True, layout="constrained")
     for ax, group in zip(axes[0], groups):
         positive = True
         for label, per_group in sorted(curves.items()):
@@ -150,11 +154,14 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], interp: int | None, ti
             ax.axvline(interp, color="gray", ls="--", lw=1)
         if positive and ylabel.startswith("RMSE"):
             ax.set_yscale("log")
-        ax.set_title(group)
+            lo, hi = ax.get_ylim()
+            log_ticks(ax.yaxis, lo, hi)
+        ax.set_title(f"{group} trajectories" if group in ("viewed", "unviewed") else group)
         ax.set_xlabel("frame")
-        ax.set_ylabel(ylabel)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        if ax is axes[0][0]:
+            ax.set_ylabel(ylabel)
+        ax.grid(True, which="major", alpha=0.35)
+        ax.legend()
     fig.suptitle(title)
     _save_png(fig, path)
     plt.close(fig)
@@ -167,13 +174,14 @@ def accumulation_curves(rdir: Path, rec: dict[str, Any]) -> dict[str, np.ndarray
 
 def plot_accumulation(curves: dict[str, dict[str, np.ndarray]], title: str, path: Path) -> None:
     """One panel per CloDS row: extraction vs truth (E-GT), prediction vs truth (P-GT), prediction vs extraction (P-E)."""
-    import matplotlib
+    plt = pyplot()
+    with page_style():
+        _plot_accumulation(plt, curves, title, path)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+def _plot_accumulation(plt: Any, curves: dict[str, dict[str, np.ndarray]], title: str, path: Path) -> None:
     labels = sorted(curves)
-    fig, axes = plt.subplots(1, len(labels), figsize=(4.6 * len(labels), 3.8), squeeze=False, sharey=True, layout="constrained")
+    fig, axes = plt.subplots(1, len(labels), figsize=(WIDTH_IN, 4.0), squeeze=False, sharey=True, layout="constrained")
     styles = {"E-GT": ("tab:green", "extracted vs truth (E-GT)"), "P-GT": ("tab:blue", "predicted vs truth (P-GT)"),
               "P-E": ("tab:orange", "predicted vs extracted (P-E)")}  # fmt: skip
     for ax, label in zip(axes[0], labels):
@@ -186,7 +194,7 @@ def plot_accumulation(curves: dict[str, dict[str, np.ndarray]], title: str, path
         ax.grid(True, alpha=0.3)
         if ax is axes[0][0]:
             ax.set_ylabel("RMSE (m)")
-            ax.legend(fontsize=8)
+            ax.legend()
     fig.suptitle(title)
     _save_png(fig, path)
     plt.close(fig)
@@ -210,7 +218,7 @@ def write_report(runs_dir: Path, out_dir: Path, metric: str = HEADLINE) -> list[
         csv_path = out_dir / f"error_vs_time_{stem}.csv"
         write_text(csv_path, points.to_csv(index=False))
         png_path = out_dir / f"error_vs_time_{stem}.png"
-        plot_error_vs_time(points, f"{metric} against time ({scene}, preset {preset})", png_path)
+        plot_error_vs_time(points, f"Error against run time ({scene}, preset {preset})", png_path)
         curves = {rec["label"]: mean_curves(rdir, rec) for rdir, rec in items}
         long_rows = [
             {"label": label, "group": group, "frame": t, "rmse": float(v)}

