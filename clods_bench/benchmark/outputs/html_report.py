@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import base64
 import html
+import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +23,12 @@ from clods_bench.atomic import write_text
 from clods_bench.benchmark.core.registry import Registry, default_registry
 from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.outputs.tables import layout_frames, table_layout
+from clods_bench.benchmark.outputs.watch import WATCH_ANCHOR, build_watch, watch_html
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
 
 INDEX_FILE = "index.html"
-MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4", ".webm": "video/webm"}
+MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".webp": "image/webp", ".mp4": "video/mp4", ".webm": "video/webm"}
 MAX_EMBED_BYTES = 25 * 2**20  # larger media are linked by path instead of embedded
 TASK_ORDER = ("cdg", "nvs", "dvc", "dvc_multi", "stability", "extract")
 INFER_ANCHOR = "bench-infer"
@@ -39,6 +42,10 @@ img, video { max-width: 100%; border: 1px solid #ddd; }
 figure { margin: 1em 0; }
 figcaption, .caption { color: #555; font-size: 0.9em; }
 """
+
+
+def _stderr(line: str) -> None:
+    print(f"warning: {line}", file=sys.stderr)
 
 
 def _data_uri(path: Path) -> str | None:
@@ -112,12 +119,16 @@ def build_html_report(
     media_seeds: int = 1,
     bench_dir: Path | None = None,
     registry: Registry | None = None,
+    watch: Sequence[str] | None = (),
+    warn: Callable[[str], None] | None = None,
 ) -> list[Path]:
     """Write `out_dir/index.html` (plus the PNG/CSV plots of `report.write_report` when CDG records exist); return the paths.
 
     Each task's records are shown in the table layout the task declares (`registry`: the installed plugins' by
     default). Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
-    `bench infer` results there (`infer_*.json`) get a section of their own.
+    `bench infer` results there (`infer_*.json`) get a section of their own. The Watch section (`watch.build_watch`)
+    animates the records named in `watch` (labels or record folders; empty: every record; None: no Watch section);
+    a record it cannot watch is one line to `warn` (default: stderr).
     """
     from clods_bench.benchmark.outputs.report import HEADLINE, write_report
 
@@ -178,6 +189,12 @@ def build_html_report(
                     png = out_dir / "meshes" / f"{rdir.parent.name}_{rdir.name}_{sample.parent.name}_{sample.stem}.png"
                     written.append(plot_mesh_sample(sample, png))
                     parts.append(media_html(png, f"{rec['label']} ({rec['scene']}): {sample.relative_to(rdir)}, per-node error as colour"))
+    if watch is not None:
+        items, warnings = build_watch(groups, out_dir, registry, watch, warn or _stderr)
+        written += [p for item in items for p in (item.video, item.view3d) if p is not None]
+        toc.insert(0, f"<li><a href='#{WATCH_ANCHOR}'>Watch: {len(items)} videos, {sum(i.view3d is not None for i in items)} 3D views"
+                      + (f" ({len(warnings)} runs not watched)" if warnings else "") + "</a></li>")  # fmt: skip
+        parts.append(watch_html(items, warnings, out_dir, media_html))
     if infer_html:
         toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")
         parts.append(infer_html)
