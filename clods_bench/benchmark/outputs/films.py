@@ -7,6 +7,7 @@ of one table's rows that show the same trajectory side by side in one animation 
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,6 +60,8 @@ def save_film(path: Path, truth: np.ndarray, pred: np.ndarray, views: Sequence[i
 def load_film(path: Path) -> Film:
     """The film at `path`; one that cannot be read or whose arrays disagree is a ClodsError naming the file."""
     path = Path(path)
+    if not zipfile.is_zipfile(path):
+        raise ClodsError("not a readable film (not an .npz archive)", where=str(path))
     try:
         with np.load(path) as z:
             film = Film(path, z["truth"], z["pred"], [int(v) for v in z["views"]], [int(f) for f in z["frames"]], str(z["trajectory"]), str(z["title"]))

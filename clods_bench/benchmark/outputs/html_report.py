@@ -44,6 +44,10 @@ figcaption, .caption { color: #555; font-size: 0.9em; }
 """
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
 def _stderr(line: str) -> None:
     print(f"warning: {line}", file=sys.stderr)
 
@@ -192,8 +196,9 @@ def build_html_report(
     if watch is not None:
         items, warnings = build_watch(groups, out_dir, registry, watch, warn or _stderr)
         written += [p for item in items for p in (item.video, item.view3d) if p is not None]
-        toc.insert(0, f"<li><a href='#{WATCH_ANCHOR}'>Watch: {len(items)} videos, {sum(i.view3d is not None for i in items)} 3D views"
-                      + (f" ({len(warnings)} runs not watched)" if warnings else "") + "</a></li>")  # fmt: skip
+        views = sum(i.view3d is not None for i in items)
+        toc.insert(0, f"<li><a href='#{WATCH_ANCHOR}'>Watch: {_count(len(items), 'video')}, {_count(views, '3D view')}"
+                      + (f" ({_count(len(warnings), 'run')} not watched)" if warnings else "") + "</a></li>")  # fmt: skip
         parts.append(watch_html(items, warnings, out_dir, media_html))
     if infer_html:
         toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")

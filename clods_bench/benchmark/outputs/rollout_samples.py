@@ -8,6 +8,7 @@ scene's rest shape back (edge strain, the cloth/obstacle split), `trajectory` na
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +58,8 @@ def load_rollout_sample(path: Path) -> RolloutSample:
     path = Path(path)
     if not path.is_file():
         raise ClodsError("the rollout sample is missing", where=str(path))
+    if not zipfile.is_zipfile(path):
+        raise ClodsError("not a readable rollout sample (not an .npz archive)", where=str(path))
     try:
         cells, meshes, truth, marks, title = load_mesh_sample(path)
         with np.load(path) as z:
