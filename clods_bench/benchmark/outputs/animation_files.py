@@ -16,6 +16,10 @@ from clods_bench.atomic import atomic_path
 from clods_bench.errors import ClodsError
 
 
+CONTROLS_PAD = 44
+"""White rows under a video's content: a browser's paused-video controls cover the bottom of the picture."""
+
+
 @functools.lru_cache(maxsize=8)
 def label_font(size: int):  # noqa: ANN201 - a PIL font
     """Pillow's built-in scalable font at `size` pixels, for the labels drawn into video frames."""

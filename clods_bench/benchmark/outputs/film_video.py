@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clods_bench.benchmark.outputs.animation_files import label_font, write_animation
+from clods_bench.benchmark.outputs.animation_files import CONTROLS_PAD, label_font, write_animation
 from clods_bench.benchmark.outputs.films import Film
 
 MIN_TILE = 128
@@ -35,7 +35,7 @@ def film_video_frames(rows: list[tuple[str, Film]], title: str) -> np.ndarray:
     th, tw = h * k, w * k
     sources = [("ground truth", first.truth)] + [(label, film.pred) for label, film in rows]
     width = LABEL_W + views * (tw + GAP) + GAP
-    height = TOP_H + len(sources) * (th + GAP) + GAP
+    height = TOP_H + len(sources) * (th + GAP) + GAP + CONTROLS_PAD
     base = Image.new("RGB", (width, height), (255, 255, 255))
     draw = ImageDraw.Draw(base)
     for v, view in enumerate(first.views):

@@ -199,7 +199,7 @@ def build_html_report(
         views = sum(i.view3d is not None for i in items)
         toc.insert(0, f"<li><a href='#{WATCH_ANCHOR}'>Watch: {_count(len(items), 'video')}, {_count(views, '3D view')}"
                       + (f" ({_count(len(warnings), 'run')} not watched)" if warnings else "") + "</a></li>")  # fmt: skip
-        parts.append(watch_html(items, warnings, out_dir, media_html))
+        parts.insert(1, watch_html(items, warnings, out_dir, media_html))  # first after the contents, as listed there
     if infer_html:
         toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")
         parts.append(infer_html)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clods_bench.benchmark.outputs.animation_files import label_font, write_animation
+from clods_bench.benchmark.outputs.animation_files import CONTROLS_PAD, label_font, write_animation
 from clods_bench.benchmark.outputs.rollout_strain import STRAIN_MAX, Divergence
 from clods_bench.datasets.cameras import Camera, intrinsics_from_fov, look_at
 
@@ -116,13 +116,13 @@ def rollout_video_frames(cells: np.ndarray, panels: list[Panel], title: str, mar
     camera = watch_camera(centre, radius)
     rows, cols = grid_shape(len(panels))
     cell_h = HEADER_H + PANEL_H + FOOTER_H
-    width, height = cols * PANEL_W, TITLE_H + rows * cell_h + SCALE_H
+    width, height = cols * PANEL_W, TITLE_H + rows * cell_h + SCALE_H + CONTROLS_PAD
     num_frames = max(len(p.frames) for p in panels)
     shown = [last_finite(p.frames) for p in panels]
     base = Image.new("RGB", (width, height), (255, 255, 255))
     draw = ImageDraw.Draw(base)
     draw.text((8, 5), title, fill=(20, 20, 20), font=label_font(14))
-    _draw_scale(draw, width, height - SCALE_H)
+    _draw_scale(draw, width, height - SCALE_H - CONTROLS_PAD)
     for k, panel in enumerate(panels):
         x0, y0 = (k % cols) * PANEL_W, TITLE_H + (k // cols) * cell_h
         draw.rectangle([x0, y0, x0 + PANEL_W - 1, y0 + HEADER_H - 1], fill=(235, 235, 240))

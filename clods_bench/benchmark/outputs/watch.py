@@ -32,6 +32,8 @@ from clods_bench.errors import ClodsError
 
 WATCH_DIR = "watch"
 WATCH_ANCHOR = "watch"
+TASK_ORDER = ("cdg", "nvs", "dvc", "dvc_multi", "stability")
+"""The order of the Watch section: the paper's tables, then stability (as the report's sections)."""
 ROLLOUT_TASKS = ("cdg", "stability")
 FILM_TASKS = ("nvs", "dvc", "dvc_multi")
 TABLE_NAMES = {"cdg": "Table 2 (CDG)", "nvs": "Table 3 (NVS)", "dvc": "Table 4 (DVC)", "dvc_multi": "DVC, several trajectories", "stability": "stability"}
@@ -117,7 +119,7 @@ def build_watch(groups: Records, out_dir: Path, registry: Any, select: Sequence[
                     rollouts.setdefault(key, []).append((rec["label"], seed, load_seed_result(rdir, seed), sample))
                 elif task in FILM_TASKS:
                     if select:
-                        note(f"{_name(rdir, rec)}: a {task} run has no rollouts (renderer or video predictor only): no 3D view; its frames are animated")
+                        note(f"{_name(rdir, rec)}: no rollouts to view in 3D (the {task} task scores rendered or predicted frames); its frames are animated")
                     paths = sorted(sdir.glob(f"*{FILM_SUFFIX}"))
                     if not paths:
                         note(f"{_name(rdir, rec)}: no saved frames (*{FILM_SUFFIX}) in {sdir}; no animation for it")
@@ -130,13 +132,14 @@ def build_watch(groups: Records, out_dir: Path, registry: Any, select: Sequence[
                         key = (task, rec["scene"], preset, film.trajectory, tuple(film.views), tuple(film.frames), _digest(film.truth))
                         films.setdefault(key, []).append((rec["label"], film))
                 elif select:
-                    note(f"{_name(rdir, rec)}: a {task} run has no rollouts or predicted frames to watch")
+                    note(f"{_name(rdir, rec)}: the {task} task saves no rollouts or predicted frames to watch")
     for name in sorted(str(n) for n in named - matched):
         note(f"--watch {name}: no record of that label or folder under the runs folder")
     out = Path(out_dir) / WATCH_DIR
-    items = [_rollout_item(key, rows, out, registry, fmt) for key, rows in sorted(rollouts.items(), key=lambda kv: tuple(map(str, kv[0])))]
-    items += [_film_item(key, rows, out, fmt) for key, rows in sorted(films.items(), key=lambda kv: tuple(map(str, kv[0])))]
-    return items, warnings
+    made = [(key, _rollout_item(key, rows, out, registry, fmt)) for key, rows in rollouts.items()]
+    made += [(key, _film_item(key, rows, out, fmt)) for key, rows in films.items()]
+    made.sort(key=lambda kv: (TASK_ORDER.index(kv[0][0]) if kv[0][0] in TASK_ORDER else len(TASK_ORDER), tuple(map(str, kv[0]))))
+    return [item for _, item in made], warnings
 
 
 def _rollout_item(key: tuple, rows: list[tuple[str, int, dict[str, Any] | None, RolloutSample]], out: Path, registry: Any,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.registry import default_registry
-from clods_bench.benchmark.outputs.animation_files import mp4_available, read_animation, write_animation
+from clods_bench.benchmark.outputs.animation_files import CONTROLS_PAD, mp4_available, read_animation, write_animation
 from clods_bench.benchmark.outputs.film_video import LABEL_W, MIN_TILE, TOP_H, film_video_frames
 from clods_bench.benchmark.outputs.films import FILM_MAX_FRAMES, load_film, save_film
 from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, load_rollout_sample
@@ -89,7 +89,7 @@ def test_rollout_video_frames_size_and_divergence_marking(tmp_path: Path, fmt: s
     assert "ground truth, steady (seed 0), tear (seed 0)" in items[0].caption and f"diverged at frame {TEAR_AT}" in items[0].caption
     video = read_animation(items[0].video)
     cell_h = HEADER_H + PANEL_H + FOOTER_H
-    assert video.shape == (FRAMES, TITLE_H + cell_h + SCALE_H, 3 * PANEL_W, 3)  # truth, steady, tear in one row
+    assert video.shape == (FRAMES, TITLE_H + cell_h + SCALE_H + CONTROLS_PAD, 3 * PANEL_W, 3)  # truth, steady, tear in one row
     footer = slice(TITLE_H + HEADER_H + PANEL_H, TITLE_H + cell_h)
     for t, frame in enumerate(video):
         red = _red(frame)
@@ -147,7 +147,7 @@ def test_film_animation_labels_rows_and_frames(tmp_path: Path) -> None:
     assert films[0][1].truth.dtype == np.uint8 and films[0][1].frames == [10, 11, 12, 13, 14]
     video = film_video_frames(films, "Table 3")
     k = MIN_TILE // 24 + 1  # tiles enlarged to at least 128 px a side
-    assert video.shape[0] == 5 and video.shape[2] == LABEL_W + 2 * (24 * k + 4) + 4 and video.shape[1] == TOP_H + 3 * (16 * k + 4) + 4
+    assert video.shape[0] == 5 and video.shape[2] == LABEL_W + 2 * (24 * k + 4) + 4 and video.shape[1] == TOP_H + 3 * (16 * k + 4) + 4 + CONTROLS_PAD
     tile = video[2, TOP_H + 4 : TOP_H + 4 + 16 * k : k, LABEL_W + 4 : LABEL_W + 4 + 24 * k : k]
     np.testing.assert_array_equal(tile, films[0][1].truth[0, 2])  # row 0, view 0, frame 2: the truth
     long = save_film(tmp_path / "long_frames.npz", np.zeros((1, 300, 4, 4, 3)), np.zeros((1, 300, 4, 4, 3)), [0], list(range(300)), "traj 0")
@@ -178,7 +178,7 @@ def test_runs_that_cannot_be_watched_are_one_line_each(tmp_path: Path) -> None:
     lines.clear()
     items, _ = build_watch(_groups(good, nvs), tmp_path / "out2", default_registry(), select=["GaMeS", str(good[0]), "nothing"], warn=lines.append, fmt="webp")
     assert len(items) == 2 and len(lines) == 2
-    assert lines[0] == f"nvs record {nvs_dir} (GaMeS): a nvs run has no rollouts (renderer or video predictor only): no 3D view; its frames are animated"
+    assert lines[0] == f"nvs record {nvs_dir} (GaMeS): no rollouts to view in 3D (the nvs task scores rendered or predicted frames); its frames are animated"
     assert lines[1] == "--watch nothing: no record of that label or folder under the runs folder"
 
 
