@@ -6,7 +6,9 @@ CSV files are kept next to the page), and the media the runs wrote: novel-view i
 (`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories), and, when a
 `bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot. Mesh samples
 the CDG and extract tasks saved (`*_meshes.npz`) are drawn as pictures: truth beside the extracted or predicted cloth
-with per-node error as colour (PNGs under `meshes/` next to the page).
+with per-node error as colour (PNGs under `meshes/` next to the page). The Watch section (`watch.py`, first after the
+contents) animates the runs: rollout videos and 3D views of CDG and stability runs, true and predicted frames of NVS
+and DVC runs (files under `watch/` next to the page).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from clods_bench.atomic import write_text
 from clods_bench.benchmark.core.registry import Registry, default_registry
 from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.outputs.tables import layout_frames, table_layout
+from clods_bench.benchmark.outputs.training_curves import write_training_curves
 from clods_bench.benchmark.outputs.watch import WATCH_ANCHOR, build_watch, watch_html
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
@@ -144,8 +147,10 @@ def build_html_report(
     if not groups and not infer_html:
         raise ClodsError("no run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     written: list[Path] = [*infer_files]
-    if "cdg" in groups or "stability" in groups:  # error-vs-time plots (cdg), training curves (stability)
+    if "cdg" in groups:  # error-vs-time plots (cdg), training curves (stability)
         written += write_report(runs_dir, out_dir, metric or HEADLINE)
+    elif "stability" in groups:  # stability records alone: their training curves, if any
+        written += write_training_curves(runs_dir, out_dir)
 
     parts = [f"<h1>clods-bench report</h1><p class='caption'>Records under <code>{html.escape(str(runs_dir.resolve()))}</code>, "
              f"built {time.strftime('%Y-%m-%d %H:%M:%S')}.</p>"]  # fmt: skip

@@ -173,9 +173,9 @@ def write_view3d(path: Path, cells: np.ndarray, panels: list[Panel], title: str,
     from plotly.offline import get_plotlyjs
 
     figure, picks = view3d_figure(cells, panels, title, mark, view, budget, obstacle=obstacle)
-    js = Path(path).parent / PLOTLY_JS
-    if not js.is_file():
-        write_text(js, get_plotlyjs())
+    js, code = Path(path).parent / PLOTLY_JS, get_plotlyjs()
+    if not js.is_file() or js.stat().st_size != len(code.encode()):  # once per folder, again when plotly changed
+        write_text(js, code)
     links = [f" <a class='div' href='#frame={p.divergence.frame}'>{html.escape(p.label)}: {html.escape(p.divergence.caption())}</a>"
              for p in panels if p.divergence is not None]  # fmt: skip
     page = PAGE.format(title=html.escape(title), js=PLOTLY_JS, caption=html.escape(caption), fid=FIGURE_ID,

@@ -136,14 +136,26 @@ def build_watch(groups: Records, out_dir: Path, registry: Any, select: Sequence[
     for name in sorted(str(n) for n in named - matched):
         note(f"--watch {name}: no record of that label or folder under the runs folder")
     out = Path(out_dir) / WATCH_DIR
-    made = [(key, _rollout_item(key, rows, out, registry, fmt)) for key, rows in rollouts.items()]
+    views3d = plotly_available()
+    if rollouts and not views3d:
+        note("plotly is not installed (pip install plotly): rollout videos only, no 3D views")
+    made = [(key, _rollout_item(key, rows, out, registry, fmt, views3d)) for key, rows in rollouts.items()]
     made += [(key, _film_item(key, rows, out, fmt)) for key, rows in films.items()]
     made.sort(key=lambda kv: (TASK_ORDER.index(kv[0][0]) if kv[0][0] in TASK_ORDER else len(TASK_ORDER), tuple(map(str, kv[0]))))
     return [item for _, item in made], warnings
 
 
+def plotly_available() -> bool:
+    """True when plotly (a base dependency) imports: the 3D views need it."""
+    try:
+        import plotly  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def _rollout_item(key: tuple, rows: list[tuple[str, int, dict[str, Any] | None, RolloutSample]], out: Path, registry: Any,
-                  fmt: str | None) -> WatchItem:  # fmt: skip
+                  fmt: str | None, view3d: bool = True) -> WatchItem:  # fmt: skip
     """The video and 3D page of one group of rollouts of the same trajectory."""
     task, scene_name, preset, trajectory, num_frames, digest = key
     try:
@@ -154,9 +166,11 @@ def _rollout_item(key: tuple, rows: list[tuple[str, int, dict[str, Any] | None, 
     panels: list[Panel] = []
     sources: set[str] = set()
     truth = next((s for *_, s in rows if s.truth is not None), None)
+    obstacle: np.ndarray | None = None
     for label, seed, result, sample in rows:
         model = strain_model(sample, scene)
         sources.add(model.rest_source)
+        obstacle = (model.face_edges < 0).any(axis=1) if obstacle is None else obstacle
         if not panels and truth is not None:
             panels.append(Panel("ground truth", truth.truth, face_strain(model, truth.truth)))
         panels.append(Panel(f"{label} (seed {seed})", sample.pred, face_strain(model, sample.pred), rollout_divergence(sample, model, task, result)))
@@ -166,12 +180,13 @@ def _rollout_item(key: tuple, rows: list[tuple[str, int, dict[str, Any] | None, 
     title = f"{TABLE_NAMES.get(task, task)} · {scene_name} · preset {preset} · {trajectory}"
     stem = out / _slug(task, scene_name, preset, trajectory, digest)
     video = write_rollout_video(stem, ref.cells, panels, title, mark, view, fmt=fmt)
-    obstacle = (strain_model(ref, scene).face_edges < 0).any(axis=1)
     summary = (f"{title}: {', '.join(p.label for p in panels)}; {num_frames} frames; faces coloured by their largest edge strain "
                f"|l/l0 - 1| (0 to {STRAIN_MAX:g}+), rest shape: {'; '.join(sorted(sources))}.")  # fmt: skip
     diverged = " ".join(f"{p.label}: {p.divergence.caption()} ({p.divergence.source})." for p in panels if p.divergence)
     caption = summary + (" " + diverged if diverged else " No rollout diverged.")
-    page, _ = write_view3d(stem.with_name(stem.name + "_3d.html"), ref.cells, panels, title, summary, mark, view, obstacle=obstacle)
+    page = None
+    if view3d:
+        page, _ = write_view3d(stem.with_name(stem.name + "_3d.html"), ref.cells, panels, title, summary, mark, view, obstacle=obstacle)
     jumps = [(p.label, p.divergence.frame) for p in panels if p.divergence is not None]
     return WatchItem(title, video, caption, page, jumps)
 

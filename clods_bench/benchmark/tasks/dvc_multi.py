@@ -45,9 +45,9 @@ from clods_bench.benchmark.clods.video_runs import (
     write_video,
 )
 from clods_bench.benchmark.core.builders import as_images, split_spec
-from clods_bench.benchmark.outputs.films import FILM_SUFFIX, save_film
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.outputs.films import FILM_SUFFIX, save_film
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.scoring.metrics import divergence_step
 from clods_bench.datasets.splits import SplitSpec

@@ -189,3 +189,21 @@ def test_write_animation_refuses_bad_frames(tmp_path: Path) -> None:
     frames[1] = 255
     path = write_animation(frames, tmp_path / "b", 10.0, fmt="webp")
     np.testing.assert_array_equal(read_animation(path), frames)  # lossless
+
+
+def test_report_command_prints_one_warning_per_run_and_writes_the_rest(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from clods_bench.cli import main
+
+    runs = tmp_path / "runs"
+    write_record(runs, "stability", "good", tearing(), truth_frames())
+    gone, _ = write_record(runs, "stability", "gone", truth_frames(), truth_frames())
+    (gone / "seed_0" / ROLLOUT_FILE).unlink()
+    out = tmp_path / "report"
+    assert main(["report", "--runs", str(runs), "--out", str(out), "--bench", str(tmp_path / "no-bench")]) == 0
+    err = " ".join(capsys.readouterr().err.split())  # rich wraps long lines
+    assert err.count("warning:") == 1 and f"stability record {gone} (gone):" in err and "the rollout sample is missing" in err
+    page = (out / "index.html").read_text()
+    assert "Watch: 1 video, 1 3D view (1 run not watched)" in page and "<h2 id='stability-all_scenes-ci'>" in page
+    assert len(list((out / "watch").glob("stability_*"))) == 2
+    assert main(["report", "--runs", str(runs), "--out", str(tmp_path / "quiet"), "--bench", str(tmp_path / "no-bench"), "--no-watch"]) == 0
+    assert "Watch" not in (tmp_path / "quiet" / "index.html").read_text() and not (tmp_path / "quiet" / "watch").exists()
