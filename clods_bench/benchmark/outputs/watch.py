@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench.benchmark.outputs.animation_files import mp4_available
 from clods_bench.benchmark.outputs.film_video import write_film_video
 from clods_bench.benchmark.outputs.films import FILM_SUFFIX, Film, load_film
 from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, RolloutSample, load_rollout_sample
