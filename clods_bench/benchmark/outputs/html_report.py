@@ -6,14 +6,18 @@ CSV files are kept next to the page), and the media the runs wrote: novel-view i
 (`nvs_grid.png`), DVC videos and grids (`*.gif`, `*.mp4`, `*.png` in seed directories), and, when a
 `bench infer` output folder is given (`--bench`, default `bench/`), the inference-time table and plot. Mesh samples
 the CDG and extract tasks saved (`*_meshes.npz`) are drawn as pictures: truth beside the extracted or predicted cloth
-with per-node error as colour (PNGs under `meshes/` next to the page).
+with per-node error as colour (PNGs under `meshes/` next to the page). The Watch section (`watch.py`, first after the
+contents) animates the runs: rollout videos and 3D views of CDG and stability runs, true and predicted frames of NVS
+and DVC runs (files under `watch/` next to the page).
 """
 
 from __future__ import annotations
 
 import base64
 import html
+import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +25,13 @@ from clods_bench.atomic import write_text
 from clods_bench.benchmark.core.registry import Registry, default_registry
 from clods_bench.benchmark.outputs.mesh_pictures import MESH_SUFFIX, plot_mesh_sample
 from clods_bench.benchmark.outputs.tables import layout_frames, table_layout
+from clods_bench.benchmark.outputs.training_curves import write_training_curves
+from clods_bench.benchmark.outputs.watch import WATCH_ANCHOR, build_watch, watch_html
 from clods_bench.benchmark.running.records import iter_records
 from clods_bench.errors import ClodsError
 
 INDEX_FILE = "index.html"
-MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4", ".webm": "video/webm"}
+MEDIA_SUFFIXES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".webp": "image/webp", ".mp4": "video/mp4", ".webm": "video/webm"}
 MAX_EMBED_BYTES = 25 * 2**20  # larger media are linked by path instead of embedded
 TASK_ORDER = ("cdg", "nvs", "dvc", "dvc_multi", "stability", "extract")
 INFER_ANCHOR = "bench-infer"
@@ -39,6 +45,14 @@ img, video { max-width: 100%; border: 1px solid #ddd; }
 figure { margin: 1em 0; }
 figcaption, .caption { color: #555; font-size: 0.9em; }
 """
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _stderr(line: str) -> None:
+    print(f"warning: {line}", file=sys.stderr)
 
 
 def _data_uri(path: Path) -> str | None:
@@ -112,12 +126,16 @@ def build_html_report(
     media_seeds: int = 1,
     bench_dir: Path | None = None,
     registry: Registry | None = None,
+    watch: Sequence[str] | None = (),
+    warn: Callable[[str], None] | None = None,
 ) -> list[Path]:
     """Write `out_dir/index.html` (plus the PNG/CSV plots of `report.write_report` when CDG records exist); return the paths.
 
     Each task's records are shown in the table layout the task declares (`registry`: the installed plugins' by
     default). Media (grids, videos) are shown for the first `media_seeds` seeds of every run. With `bench_dir`, the
-    `bench infer` results there (`infer_*.json`) get a section of their own.
+    `bench infer` results there (`infer_*.json`) get a section of their own. The Watch section (`watch.build_watch`)
+    animates the records named in `watch` (labels or record folders; empty: every record; None: no Watch section);
+    a record it cannot watch is one line to `warn` (default: stderr).
     """
     from clods_bench.benchmark.outputs.report import HEADLINE, write_report
 
@@ -129,8 +147,10 @@ def build_html_report(
     if not groups and not infer_html:
         raise ClodsError("no run records found", where=str(runs_dir), hint="run e.g. `clods-bench run cdg --sim constvel` first")
     written: list[Path] = [*infer_files]
-    if "cdg" in groups or "stability" in groups:  # error-vs-time plots (cdg), training curves (stability)
+    if "cdg" in groups:  # error-vs-time plots (cdg), training curves (stability)
         written += write_report(runs_dir, out_dir, metric or HEADLINE)
+    elif "stability" in groups:  # stability records alone: their training curves, if any
+        written += write_training_curves(runs_dir, out_dir)
 
     parts = [f"<h1>clods-bench report</h1><p class='caption'>Records under <code>{html.escape(str(runs_dir.resolve()))}</code>, "
              f"built {time.strftime('%Y-%m-%d %H:%M:%S')}.</p>"]  # fmt: skip
@@ -178,6 +198,13 @@ def build_html_report(
                     png = out_dir / "meshes" / f"{rdir.parent.name}_{rdir.name}_{sample.parent.name}_{sample.stem}.png"
                     written.append(plot_mesh_sample(sample, png))
                     parts.append(media_html(png, f"{rec['label']} ({rec['scene']}): {sample.relative_to(rdir)}, per-node error as colour"))
+    if watch is not None:
+        items, warnings = build_watch(groups, out_dir, registry, watch, warn or _stderr)
+        written += [p for item in items for p in (item.video, item.view3d) if p is not None]
+        views = sum(i.view3d is not None for i in items)
+        toc.insert(0, f"<li><a href='#{WATCH_ANCHOR}'>Watch: {_count(len(items), 'video')}, {_count(views, '3D view')}"
+                      + (f" ({_count(len(warnings), 'run')} not watched)" if warnings else "") + "</a></li>")  # fmt: skip
+        parts.insert(1, watch_html(items, warnings, out_dir, media_html))  # first after the contents, as listed there
     if infer_html:
         toc.append(f"<li><a href='#{INFER_ANCHOR}'>inference time: CloDS against the traditional pipeline (bench infer)</a></li>")
         parts.append(infer_html)

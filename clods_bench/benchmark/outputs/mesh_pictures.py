@@ -20,6 +20,8 @@ __all__ = ["MESH_SUFFIX", "choose_frames", "face_errors", "load_mesh_sample", "n
 MESH_SUFFIX = "_meshes.npz"
 """Seed-directory files ending so are mesh samples the report draws."""
 _PREFIX = "mesh__"
+INFO_PREFIX = "info__"
+"""Prefix of a sample's `extra` arrays (`save_mesh_sample(extra=...)`)."""
 
 
 def node_errors(truth: np.ndarray, meshes: np.ndarray) -> np.ndarray:
@@ -41,8 +43,9 @@ def choose_frames(num_frames: int, marks: Sequence[int] = ()) -> list[int]:
 
 
 def save_mesh_sample(path: Path, cells: np.ndarray, meshes: Mapping[str, np.ndarray], truth: np.ndarray | None = None,
-                     marks: Sequence[int] = (), title: str = "") -> Path:  # fmt: skip
-    """Write one sample (atomically): `meshes` maps a column name to (T, V, 3) frames over the same frames as `truth`."""
+                     marks: Sequence[int] = (), title: str = "", extra: Mapping[str, np.ndarray] | None = None) -> Path:  # fmt: skip
+    """Write one sample (atomically): `meshes` maps a column name to (T, V, 3) frames over the same frames as `truth`;
+    `extra` arrays are stored beside them as `info__<name>` (what a reader needs more, e.g. a rollout's topology)."""
     if not meshes:
         raise ClodsError("no mesh sequence to save", where=str(path))
     shapes = {name: np.shape(m) for name, m in meshes.items()}
@@ -55,6 +58,7 @@ def save_mesh_sample(path: Path, cells: np.ndarray, meshes: Mapping[str, np.ndar
     arrays = {f"{_PREFIX}{name}": np.asarray(m, np.float32) for name, m in meshes.items()}
     if truth is not None:
         arrays["truth"] = np.asarray(truth, np.float32)
+    arrays.update({f"{INFO_PREFIX}{name}": np.asarray(value) for name, value in (extra or {}).items()})
     write_npz(path, cells=np.asarray(cells, np.int32), marks=np.asarray(list(marks), np.int64), title=np.asarray(title), **arrays)
     return path
 

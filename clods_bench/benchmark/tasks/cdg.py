@@ -15,6 +15,7 @@ from clods_bench.benchmark.core.eval_data import WHERE, scored_data
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
 from clods_bench.benchmark.core.interfaces import RolloutInput, check_rollout
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
+from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, save_rollout_sample
 from clods_bench.benchmark.scoring.metrics import cdg_columns, divergence_step, rmse_per_step
 from clods_bench.benchmark.scoring.monitors import cloth_monitor
 from clods_bench.datasets.data_config import DataConfig
@@ -137,8 +138,8 @@ def _save_pictures(ctx: TaskContext, sample: tuple | None, interp_steps: int, ex
     label = ctx.config.label or ctx.config.sim or "prediction"
     if sample is not None:
         group, i, traj, pred = sample
-        save_mesh_sample(ctx.work_dir / "rollout_meshes.npz", traj.cells, {label: pred}, truth=traj.world_pos[: len(pred)],
-                         marks=[interp_steps], title=f"{label}: rollout of {group} trajectory {i}, seed {ctx.seed}")  # fmt: skip
+        save_rollout_sample(ctx.work_dir / ROLLOUT_FILE, label, pred, traj.world_pos, traj.cells, traj.mesh_pos, traj.node_type, traj.dt,
+                            f"{group}/{i}", marks=[interp_steps], title=f"{label}: rollout of {group} trajectory {i}, seed {ctx.seed}")  # fmt: skip
     if extraction and extraction[0]:
         meshes, truth = extraction
         same = meshes[0].world_pos.shape[1:] == truth[0].world_pos.shape[1:]  # else a reconstructed mesh: its own topology

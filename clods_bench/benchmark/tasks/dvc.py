@@ -42,6 +42,7 @@ from clods_bench.benchmark.clods.video_runs import (
 from clods_bench.benchmark.core.builders import as_images, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.interfaces import RolloutInput, check_prediction, check_rollout
+from clods_bench.benchmark.outputs.films import save_film
 from clods_bench.benchmark.outputs.media import write_image_grid
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
@@ -56,6 +57,7 @@ if TYPE_CHECKING:
 Videos = dict[int, tuple[np.ndarray, np.ndarray]]
 """Per scored trajectory: (truth, prediction), each (N,F,H,W,3) over the scored views and frames."""
 GRID_FILE = "dvc_grid.png"
+FILM_FILE = "dvc_frames.npz"
 WHERE = "task_config.dvc"
 
 
@@ -147,6 +149,10 @@ def run_dvc(ctx: TaskContext) -> TaskResult:
         metrics.update(scores.means(None, prefix="all/"))
     curves = scores.curves(future)
     written = _write_outputs(ctx.work_dir, opts, videos, future)
+    if videos:  # the first trajectory's frames, for the report's labelled animation of the table's rows
+        first = next(iter(videos))
+        save_film(ctx.work_dir / FILM_FILE, *videos[first], views, future, f"traj {first}",
+                  f"{cfg.label or cfg.predictor or cfg.sim}: scored frames of trajectory {first}, seed {ctx.seed}")  # fmt: skip
     extra.update(
         {
             "trajectories": traj_ids,

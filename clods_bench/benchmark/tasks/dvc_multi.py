@@ -47,6 +47,7 @@ from clods_bench.benchmark.clods.video_runs import (
 from clods_bench.benchmark.core.builders import as_images, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.outputs.films import FILM_SUFFIX, save_film
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.scoring.metrics import divergence_step
 from clods_bench.datasets.splits import SplitSpec
@@ -232,6 +233,10 @@ def run_dvc_multi(ctx: TaskContext) -> TaskResult:
         metrics.update(scores[s].means(set(frames), prefix=f"{s}/"))
         curves.update({f"{s}/{k}": v for k, v in scores[s].curves(frames).items()})
     written = _write_videos(ctx.work_dir, opts, videos)
+    for s, (i, truth, pred) in videos.items():  # each split's first trajectory, for the report's labelled animation
+        name = "extrapolation" if s == "extrap" else "generalization"
+        save_film(ctx.work_dir / f"dvc_multi_{s}{FILM_SUFFIX}", truth, pred, views, split.scored(s)[2], f"{name}, traj {i}",
+                  f"{cfg.label or cfg.predictor or cfg.sim}: {name}, trajectory {i}, seed {ctx.seed}")  # fmt: skip
     images = {s: len(split.scored(s)[0]) * len(split.scored(s)[2]) * len(views) for s in SPLITS}
     extra.update(
         {

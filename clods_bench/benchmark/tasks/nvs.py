@@ -37,6 +37,7 @@ from clods_bench.atomic import atomic_path
 from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.outputs.films import film_cap, film_frame_picks, save_film, to_uint8
 from clods_bench.benchmark.outputs.media import write_image_grid
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.datasets.store import DatasetStore
@@ -45,6 +46,7 @@ from clods_bench.errors import ClodsError
 from clods_bench.typed_config import dataclass_from_dict
 
 GRID_FILE = "nvs_grid.png"
+FILM_FILE = "nvs_frames.npz"
 PARTIAL_FILE = "nvs_partial.pt"
 PARTIAL_FORMAT = 1
 METRICS = ("psnr", "ssim", "lpips")
@@ -190,6 +192,8 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
         "grid": ([], []),
         "per_frame": None,
     }  # fmt: skip
+    state.setdefault("film", ([], []))  # trajectory 0's truth and renders at `film_at`, uint8 (a resume file from before has none)
+    film_at = set(film_frame_picks(len(frames), film_cap(len(test_cams), h, w)))
     done_before = state["next"][0] * len(frames) + state["next"][1]
     lpips_before = state["lpips_seconds"] - (metric.seconds if metric is not None else 0.0)
     per_frame = state["per_frame"]
@@ -225,6 +229,9 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
                 for k, v in image_scores(pred, gt, metric).items():
                     state["scores"][k].append(torch.from_numpy(np.asarray(v)))
                     state["traj_scores"][k].append(torch.from_numpy(np.asarray(v)))
+                if pos == 0 and n in film_at:
+                    state["film"][0].append(torch.from_numpy(to_uint8(gt)))
+                    state["film"][1].append(torch.from_numpy(to_uint8(pred)))
                 if pos == 0 and n in grid_at:
                     state["grid"][0].append(torch.from_numpy(np.asarray(gt)))
                     state["grid"][1].append(torch.from_numpy(np.asarray(pred)))
@@ -259,6 +266,11 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
     shape = (len(traj_ids), len(frames), len(test_cams))  # scores are appended trajectory-major
     curves = {k: np.stack(v).reshape(shape).mean(axis=(0, 2)).tolist() for k, v in scores.items() if v}  # per scored frame
     grid_path = write_image_grid(ctx.work_dir / GRID_FILE, grid[0], grid[1]) if grid[0] else None
+    if traj_ids and len(state["film"][0]) == len(film_at):  # complete (a seed resumed from an older file has no film)
+        picks = [frames[n] for n in sorted(film_at)]
+        film = [torch.stack(x).numpy().transpose(1, 0, 2, 3, 4) for x in state["film"]]  # (views, frames, H, W, 3)
+        save_film(ctx.work_dir / FILM_FILE, film[0], film[1], test_idx, picks, f"traj {traj_ids[0]}",
+                  f"{cfg.label or cfg.renderer}: held-out views of trajectory {traj_ids[0]}, seed {ctx.seed}")  # fmt: skip
     extra = {
         "trajectories": traj_ids,
         "frames": frames,

@@ -28,6 +28,7 @@ from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, 
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
 from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, save_rollout_sample
 from clods_bench.benchmark.scoring.metrics import rmse_per_step
 from clods_bench.benchmark.scoring.monitors import MeshMonitor, cloth_monitor, first_failure
 from clods_bench.datasets.store import DatasetStore
@@ -237,7 +238,9 @@ def run_stability(ctx: TaskContext) -> TaskResult:
                 curve_rows.append({"step": float(step), "train_loss": loss_of(step), **rollout_summary(list(rows.values()), frames)})
                 bar.advance(job)
         sim.use_snapshot(snaps[-1][1])
-    per_traj, infer_seconds, extended = long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=cfg.progress)
+    kept: list[tuple[int, Trajectory, np.ndarray, np.ndarray]] = []
+    per_traj, infer_seconds, extended = long_rollouts(ctx, sim, scene, store, splits, ids, frames, scfg, name, progress=cfg.progress, keep=kept)
+    _save_rollout(ctx, kept, splits.num_steps)
     infer_steps = (frames - 2) * len(ids)
 
     results = list(per_traj.values())
@@ -268,10 +271,11 @@ def run_stability(ctx: TaskContext) -> TaskResult:
 
 def long_rollouts(
     ctx: TaskContext, sim: Simulator, scene: Any, store: DatasetStore, splits: Any, ids: list[int], frames: int, scfg: StabilityConfig,
-    name: str, progress: bool,
+    name: str, progress: bool, keep: list[tuple[int, Trajectory, np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[dict[str, dict[str, Any]], float, bool]:  # fmt: skip
     """Roll `sim` out on the trajectories `ids` for `frames` frames and watch each; returns (per trajectory, inference
-    seconds, whether every ground truth reached the full horizon)."""
+    seconds, whether every ground truth reached the full horizon). `keep` receives the first trajectory's
+    (index, stored trajectory, ground truth, rollout) for the report's videos."""
     per_traj: dict[str, dict[str, Any]] = {}
     infer_seconds, extended = 0.0, True
     with Progress(transient=True, disable=not progress) as bar:
@@ -291,10 +295,24 @@ def long_rollouts(
             result = watch(pred, gt, monitor, scfg, gt_energy, exc_frame, message)
             result["gt_max_strain"] = float(np.max(monitor.max_strain(gt)[1:]))
             per_traj[f"unviewed/{i}"] = result
+            if keep is not None and not keep:
+                keep.append((i, traj, gt, pred))
             if result["failure_frame"] is not None and progress:
                 Console(stderr=True).print(f"[yellow]{name}: trajectory {i} diverged at frame {result['failure_frame']}: {result['reason']}[/yellow]")
             bar.advance(job)
     return per_traj, infer_seconds, extended
+
+
+def _save_rollout(ctx: TaskContext, kept: list[tuple[int, Trajectory, np.ndarray, np.ndarray]], stored_frames: int) -> None:
+    """The first watched trajectory's long rollout as the seed's rollout sample (the report's videos and 3D views);
+    its ground truth only when it covers the whole horizon (re-simulated), else none."""
+    if not kept:
+        return
+    i, traj, gt, pred = kept[0]
+    label = ctx.config.label or ctx.config.sim or "prediction"
+    truth = gt if len(gt) >= len(pred) else None
+    save_rollout_sample(ctx.work_dir / ROLLOUT_FILE, label, pred, truth, traj.cells, traj.mesh_pos, traj.node_type, traj.dt, f"unviewed/{i}",
+                        marks=[stored_frames - 1], title=f"{label}: long rollout of unviewed trajectory {i}, seed {ctx.seed}")  # fmt: skip
 
 
 def rollout_summary(results: list[dict[str, Any]], frames: int) -> dict[str, float]:

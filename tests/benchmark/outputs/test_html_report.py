@@ -12,7 +12,10 @@ import numpy as np
 import pytest
 
 from clods_bench.benchmark.core.registry import default_registry
+from clods_bench.benchmark.outputs.animation_files import read_animation
 from clods_bench.benchmark.outputs.html_report import build_html_report
+from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, load_rollout_sample
+from clods_bench.benchmark.outputs.rollout_view3d import read_view3d_figure
 from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.tasks.nvs import GRID_FILE
@@ -49,11 +52,20 @@ def test_report_embeds_tables_plots_grids_and_videos(tiny_root: Path, tmp_path: 
     assert _embedded(page, "image/gif") == [(cdg_dirs[0] / "seed_0" / "rollout.gif").read_bytes()]
     pictures = sorted((out / "meshes").glob("*rollout_meshes.png"))  # one mesh picture per CDG run (truth beside rollout)
     assert len(pictures) == 2 and all(p.read_bytes() in pngs for p in pictures) and "per-node error as colour" in page
+    # Watch: one video and one 3D view for the two CDG rows (same trajectory), one animation of the NVS frames
+    videos = sorted(p.name for p in (out / "watch").iterdir() if p.suffix in (".mp4", ".webp"))
+    assert [v.split("_")[0] for v in videos] == ["cdg", "nvs"] and len(list((out / "watch").glob("*_3d.html"))) == 1
+    assert "<h2 id='watch'>Watch: rollouts and predicted frames</h2>" in page and "Watch: 2 videos, 1 3D view</a>" in page
+    view = next((out / "watch").glob("*_3d.html"))
+    assert f"<a href='watch/{view.name}'>open the 3D view</a>" in page and "constvel (seed 0), frozen (seed 0)" in page
+    sample = load_rollout_sample(cdg_dirs[0] / "seed_0" / ROLLOUT_FILE)
+    assert len(read_view3d_figure(view)["frames"]) == sample.num_frames == len(read_animation(out / "watch" / videos[0]))
     # through the CLI, with an NVS-only runs folder (no CDG plots to make)
     nvs_only = tmp_path / "nvs_only"
     shutil.copytree(nvs_dir, nvs_only / nvs_dir.relative_to(runs))
     assert main(["report", "--runs", str(nvs_only), "--out", str(tmp_path / "r2")]) == 0
-    assert sorted(p.name for p in (tmp_path / "r2").iterdir()) == ["index.html"]
+    assert sorted(p.name for p in (tmp_path / "r2").iterdir()) == ["index.html", "watch"]
+    assert [p.name.split("_")[0] for p in (tmp_path / "r2" / "watch").iterdir()] == ["nvs"]  # the NVS frames animated; no 3D view
     assert (nvs_dir / "seed_0" / GRID_FILE).read_bytes() in _embedded((tmp_path / "r2" / "index.html").read_text(), "image/png")
     assert main(["report", "--runs", str(tmp_path / "missing"), "--out", str(tmp_path / "r3")]) == 2
 

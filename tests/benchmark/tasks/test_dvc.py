@@ -14,13 +14,14 @@ import pytest
 from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.outputs.films import load_film
 from clods_bench.benchmark.outputs.image_tables import dvc_frame
 from clods_bench.benchmark.outputs.mesh_pictures import load_mesh_sample
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.benchmark.scoring.image_metrics import psnr, ssim
-from clods_bench.benchmark.tasks.dvc import GRID_FILE
+from clods_bench.benchmark.tasks.dvc import FILM_FILE, GRID_FILE
 from clods_bench.datasets.rasterizer import render_views
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import NORMAL
@@ -78,6 +79,10 @@ def test_copylast_scores_equal_the_hand_computed_ones(tiny_root: Path, tmp_path:
     seed_dir = rdir / "seed_0"
     gif = iio.imread(seed_dir / "dvc_traj0.gif", index=None)
     assert gif.shape[0] == len(FUTURE)  # one GIF frame per predicted frame
+    film = load_film(seed_dir / FILM_FILE)  # the report's animation: trajectory 0, truth and the copied last frame
+    assert film.frames == FUTURE and film.views == [2] and film.trajectory == "traj 0"
+    np.testing.assert_array_equal(film.truth[0], store.load_frames(0)[FUTURE, 2])
+    np.testing.assert_array_equal(film.pred[0], np.repeat(store.load_frames(0)[8:9, 2], len(FUTURE), axis=0))
     grid = iio.imread(seed_dir / GRID_FILE)
     assert grid.ndim == 3 and grid.shape[0] > grid.shape[1] / 4  # truth row above prediction row
     # The table: PSNR as is, SSIM x10, RMSE x100; LPIPS marked unavailable with the reason.

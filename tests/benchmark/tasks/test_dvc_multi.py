@@ -15,6 +15,7 @@ from torch import nn
 
 from clods_bench.benchmark.core.interfaces import FitContext
 from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
+from clods_bench.benchmark.outputs.films import load_film
 from clods_bench.benchmark.outputs.image_tables import dvc_multi_frame
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
@@ -129,6 +130,9 @@ def test_copylast_scores_equal_the_hand_computed_ones(tiny_root: Path, tmp_path:
     assert extra["train_trajectories"] == [0, 1] and extra["test_trajectories"] == [2] and extra["views"] == [2]
     assert extra["extrap_frames"] == EXTRAP and extra["gen_frames"] == GEN and extra["images"] == {"extrap": 6, "gen": 3}
     assert (rdir / "seed_0" / "dvc_multi_extrap_traj0.gif").is_file() and (rdir / "seed_0" / "dvc_multi_gen_traj2.gif").is_file()
+    films = {s: load_film(rdir / "seed_0" / f"dvc_multi_{s}_frames.npz") for s in ("extrap", "gen")}
+    assert (films["extrap"].frames, films["extrap"].trajectory) == (EXTRAP, "extrapolation, traj 0")
+    assert (films["gen"].frames, films["gen"].trajectory, films["gen"].views) == (GEN, "generalization, traj 2", [2])
     # The table: two column groups, the paper's unscaled SSIM/LPIPS/RMSE.
     paths = write_tables(tmp_path / "runs", tmp_path / "tables", task="dvc_multi")
     csv = pd.read_csv([q for q in paths if q.suffix == ".csv"][0])

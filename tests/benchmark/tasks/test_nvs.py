@@ -18,8 +18,9 @@ from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
+from clods_bench.benchmark.outputs.films import load_film
 from clods_bench.benchmark.scoring import lpips_weights as lw
-from clods_bench.benchmark.tasks.nvs import GRID_FILE
+from clods_bench.benchmark.tasks.nvs import FILM_FILE, GRID_FILE
 from clods_bench.datasets.generate import make_texture, resolution_of, scene_raster_settings
 from clods_bench.datasets.rasterizer import RasterSettings, render_views
 from clods_bench.datasets.store import DatasetStore
@@ -193,6 +194,11 @@ def test_constant_renderer_scores_the_analytic_psnr_and_grid(tiny_root: Path, tm
     assert grid.shape == (2 * 146 + 2, 3 * 146 + 2, 3)
     gt = store.load_frames(0)[2, 2]
     np.testing.assert_array_equal(grid[2 : 2 + 144 : 6, 148 : 148 + 144 : 6], gt)
+    # the report's film: trajectory 0's held-out view at every scored frame, truth and render (the constant colour)
+    film = load_film(rdir / "seed_0" / FILM_FILE)
+    assert film.frames == frames and film.views == [2] and film.trajectory == "traj 0" and film.truth.shape == (1, 3, 24, 24, 3)
+    np.testing.assert_array_equal(film.truth[0], store.load_frames(0)[frames, 2])
+    assert (film.pred[0] == film.pred[0, 0, 0, 0]).all()
 
 
 def test_per_frame_renderer_is_fitted_on_every_frame(tiny_root: Path, tmp_path: Path) -> None:
@@ -282,6 +288,9 @@ def test_an_interrupted_seed_resumes_with_the_uninterrupted_numbers(
     cb = json.loads((resumed_dir / "seed_0" / "result.json").read_text())["curves"]
     assert ca == cb
     np.testing.assert_array_equal(iio.imread(whole_dir / "seed_0" / GRID_FILE), iio.imread(resumed_dir / "seed_0" / GRID_FILE))
+    film_a, film_b = load_film(whole_dir / "seed_0" / FILM_FILE), load_film(resumed_dir / "seed_0" / FILM_FILE)
+    assert film_a.frames == film_b.frames == [0, 1, 2]
+    np.testing.assert_array_equal(film_a.pred, film_b.pred)
     assert not (resumed_dir / "seed_0" / PARTIAL_FILE).exists()
 
 

@@ -14,6 +14,8 @@ from clods_bench.benchmark.core.descriptors import PluginSpec
 from clods_bench.benchmark.core.hookspecs import hookimpl
 from clods_bench.benchmark.core.interfaces import RolloutInput
 from clods_bench.benchmark.core.registry import Registry, make_plugin_manager
+from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, load_rollout_sample
+from clods_bench.benchmark.outputs.rollout_strain import rollout_divergence, strain_model
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
@@ -85,6 +87,12 @@ def test_double_diverges_at_k_with_reason(tiny_root: Path, tmp_path: Path, regis
         assert rec["metrics"]["max_strain"]["mean"] >= 2.0 and math.isfinite(rec["metrics"]["rmse"]["mean"])
     else:
         assert rec["metrics"]["rmse"]["mean"] is None  # NaN in the record: no RMSE for a blown-up rollout
+    # the report's rollout sample: the watched trajectory's long rollout and truth, and its divergence the run's own
+    (path,) = (tmp_path / "runs").rglob(ROLLOUT_FILE)
+    sample = load_rollout_sample(path)
+    assert sample.trajectory in extra["diverged"] and sample.num_frames == extra["horizon_frames"] and sample.truth is not None
+    div = rollout_divergence(sample, strain_model(sample, registry.get("scene", "flag")), "stability", rec["per_seed"]["0"])
+    assert (div.frame, div.reason) == (K, extra["reasons"][sample.trajectory])
 
 
 def test_baselines_stable_and_labelled_in_table(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:
