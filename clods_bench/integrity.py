@@ -115,8 +115,10 @@ def save_torch(obj: Any, path: str | os.PathLike[str]) -> None:
 
 def seal_json(doc: dict[str, Any]) -> dict[str, Any]:
     """`doc` as `atomic.write_json` writes it (NaN as null), with `content_sha256` over the rest."""
+    t0 = time.perf_counter()
     clean = _jsonable({k: v for k, v in doc.items() if k != JSON_KEY})
     clean[JSON_KEY] = _json_hash(clean)
+    _log("seal-json", time.perf_counter() - t0, 0)
     return clean
 
 
