@@ -12,18 +12,20 @@ what to do, never used:
 
 Files written before seals existed carry none and are read as before. A file is hashed at most once per process:
 a verified file is remembered by (path, size, mtime, inode), so reading it again costs one `stat`.
-`$CLODS_BENCH_INTEGRITY_LOG` (a file path; for measuring the checks' cost only) appends one line per hash computed:
-`<kind> <seconds> <bytes>`.
+`$CLODS_BENCH_INTEGRITY_LOG` (a file path; for measuring the checks' cost only) appends one line per hash computed
+and per dataset check: `<kind> <seconds> <bytes>` (kinds: seal, seal-json, json, check-zip, check-file,
+dataset-files; a dataset check's line includes the check-file hashes it made).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from clods_bench.atomic import _jsonable, atomic_path
 from clods_bench.errors import ClodsError
@@ -35,8 +37,10 @@ LOG_ENV = "CLODS_BENCH_INTEGRITY_LOG"
 _EOCD = b"PK\x05\x06"  # a zip's end-of-central-directory record: 22 bytes, then the comment
 _BLOCK = 1 << 22
 
-_verified: dict[str, tuple[tuple[int, int, int], str]] = {}
-"""Per process: absolute path -> (stat key, SHA-256 found) of files hashed already."""
+_sealed_ok: dict[str, tuple[int, int, int]] = {}
+"""Per process: absolute path -> stat key (size, mtime, inode) of zip files whose seal was checked (or that have none)."""
+_hashes: dict[str, tuple[tuple[int, int, int], str]] = {}
+"""Per process: absolute path -> (stat key, SHA-256 of its bytes) of files `check_sha256` hashed."""
 
 
 def changed(path: str | os.PathLike[str], remedy: str, recorded: str = "written with it") -> ClodsError:
@@ -70,7 +74,7 @@ def check_zip(path: str | os.PathLike[str], remedy: str) -> None:
     target = Path(path)
     stat = target.stat()
     key, skey = os.path.abspath(target), (stat.st_size, stat.st_mtime_ns, stat.st_ino)
-    if _verified.get(key, (None, ""))[0] == skey:
+    if _sealed_ok.get(key) == skey:
         return
     size = stat.st_size
     with open(target, "rb") as fh:
@@ -80,15 +84,15 @@ def check_zip(path: str | os.PathLike[str], remedy: str) -> None:
     has_seal = len(tail) == SEAL_BYTES + 22 and sealed.startswith(SEAL_PREFIX)
     has_end = len(tail) == SEAL_BYTES + 22 and eocd[:4] == _EOCD and int.from_bytes(eocd[-2:], "little") == SEAL_BYTES
     if not has_seal and not has_end:
-        _verified[key] = (skey, "")  # written before seals: read as before
+        _sealed_ok[key] = skey  # written before seals: read as before
         return
     if not (has_seal and has_end):  # one of the two damaged: the seal's prefix, or the zip end record that frames it
         raise changed(target, remedy, "written with it (its zip end record is damaged)")
     want = sealed[len(SEAL_PREFIX):].decode("ascii", "replace")
-    got = _hash_file(target, size - SEAL_BYTES - 2, "check", suffix=b"\x00\x00")
+    got = _hash_file(target, size - SEAL_BYTES - 2, "check-zip", suffix=b"\x00\x00")
     if got != want:
         raise changed(target, remedy)
-    _verified[key] = (skey, got)
+    _sealed_ok[key] = skey
 
 
 def write_npz(path: str | os.PathLike[str], compress: bool = True, **arrays: Any) -> None:
@@ -160,9 +164,9 @@ def check_sha256(path: str | os.PathLike[str], expected: str, remedy: str, recor
     target = Path(path)
     stat = target.stat()
     key, skey = os.path.abspath(target), (stat.st_size, stat.st_mtime_ns, stat.st_ino)
-    known = _verified.get(key)
-    got = known[1] if known is not None and known[0] == skey and known[1] else _hash_file(target, stat.st_size, "check")
-    _verified[key] = (skey, got)
+    known = _hashes.get(key)
+    got = known[1] if known is not None and known[0] == skey else _hash_file(target, stat.st_size, "check-file")
+    _hashes[key] = (skey, got)
     if got != expected:
         raise changed(target, remedy, recorded)
 
@@ -170,9 +174,11 @@ def check_sha256(path: str | os.PathLike[str], expected: str, remedy: str, recor
 def forget(path: str | os.PathLike[str] | None = None) -> None:
     """Drop what this process remembers of `path` (every file when None): its next check hashes it again."""
     if path is None:
-        _verified.clear()
+        _sealed_ok.clear()
+        _hashes.clear()
     else:
-        _verified.pop(os.path.abspath(Path(path)), None)
+        _sealed_ok.pop(os.path.abspath(Path(path)), None)
+        _hashes.pop(os.path.abspath(Path(path)), None)
 
 
 def _hash_file(path: Path, length: int, kind: str, suffix: bytes = b"") -> str:
@@ -190,6 +196,16 @@ def _hash_file(path: Path, length: int, kind: str, suffix: bytes = b"") -> str:
     h.update(suffix)
     _log(kind, time.perf_counter() - t0, length)
     return h.hexdigest()
+
+
+@contextlib.contextmanager
+def timed(kind: str) -> Iterator[None]:
+    """Log the block's wall time under `kind` in $CLODS_BENCH_INTEGRITY_LOG, when set (checks made of more than hashes)."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        _log(kind, time.perf_counter() - t0, 0)
 
 
 def _log(kind: str, seconds: float, nbytes: int) -> None:

@@ -348,15 +348,21 @@ class DatasetStore:
         """Every file of every complete trajectory (and the render setup) against its manifest record: mesh files by
         sha256 (once per process while a file is unchanged on disk), frame arrays by their `zarr.json` sha256 and
         byte total (their chunks carry their own crc32c, checked when decoded)."""
+        with integrity.timed("dataset-files"):
+            self._check_files()
+
+    def _check_files(self) -> None:
         if self._manifest.get("render_setup"):
             self._checked_file(self._manifest["render_setup"], verify=False)
         for index in sorted(self.completed_indices()):
             files = self._entries[index]["files"]
             if "traj" in files:
                 self._checked_file(files["traj"], verify=False)
-            if "frames" in files:
-                self.frames(index)  # opening checks zarr.json's sha256
+            if "frames" in files:  # zarr.json by its sha256, the chunks by their byte total (and crc32c when decoded)
                 record, folder = files["frames"], self.root / files["frames"]["name"]
+                if not (folder / "zarr.json").is_file():
+                    raise ClodsError("frame array missing", where=str(folder), hint=self.regenerate_hint())
+                integrity.check_sha256(folder / "zarr.json", record["sha256"], self.regenerate_hint(), "the dataset's manifest records for it")
                 size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
                 if size != record["bytes"]:
                     raise ClodsError(f"frame array holds {size} bytes, manifest says {record['bytes']}", where=str(folder), hint=self.regenerate_hint())

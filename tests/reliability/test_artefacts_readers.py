@@ -5,6 +5,7 @@ files written before seals existed are read as before; a verified file is hashed
 from __future__ import annotations
 
 import json
+import shutil
 import zipfile
 from pathlib import Path
 
@@ -86,10 +87,10 @@ def test_a_verified_file_is_hashed_once_per_process_until_it_changes(tmp_path: P
     for _ in range(5):
         integrity.check_zip(path, "x")
     kinds = [line.split()[0] for line in log.read_text().splitlines()]
-    assert kinds == ["seal", "check"]
+    assert kinds == ["seal", "check-zip"]
     integrity.write_npz(path, x=np.arange(1000.0) + 1)  # rewritten: another inode and mtime
     integrity.check_zip(path, "x")
-    assert [line.split()[0] for line in log.read_text().splitlines()] == ["seal", "check", "seal", "check"]
+    assert [line.split()[0] for line in log.read_text().splitlines()] == ["seal", "check-zip", "seal", "check-zip"]
 
 
 def test_extraction_cache(tmp_path: Path) -> None:
@@ -166,3 +167,22 @@ def test_a_kept_content_digest_is_recomputed_when_it_or_the_manifest_changed(tmp
     flip_bit(store.root / "render_setup.npz", 64)  # what renders the frames: checked like the meshes
     with pytest.raises(ClodsError, match="render_setup.npz: content differs from the SHA-256 the dataset's manifest records"):
         content_digest(DatasetStore.open(store.root))
+
+
+def test_a_datasets_frame_arrays_are_checked_with_its_meshes(tiny_root: Path, tmp_path: Path) -> None:
+    """`zarr.json` against the manifest's sha256, the chunks by their byte total (their crc32c when decoded)."""
+    source = tiny_config(tiny_root).data.dataset_dir()
+    root = tmp_path / source.name
+    shutil.copytree(source, root)
+    digest = content_digest(DatasetStore.open(source))
+    assert content_digest(DatasetStore.open(root)) == digest
+    meta = root / "frames_0001.zarr" / "zarr.json"
+    meta.write_text(meta.read_text().replace('"shape"', '"shape" ', 1))  # same meaning, other bytes
+    with pytest.raises(ClodsError, match=f"{meta}: content differs from the SHA-256 the dataset's manifest records for it"):
+        content_digest(DatasetStore.open(root))
+    shutil.rmtree(root)
+    shutil.copytree(source, root)
+    chunk = next((root / "frames_0002.zarr").glob("c.*"))
+    chunk.write_bytes(chunk.read_bytes()[:-1])
+    with pytest.raises(ClodsError, match=f"{root / 'frames_0002.zarr'}: frame array holds"):
+        content_digest(DatasetStore.open(root))
