@@ -11,7 +11,8 @@ what to do, never used:
 - files whose hash is kept elsewhere (a dataset's arrays: the manifest's sha256 records): `check_sha256`.
 
 Files written before seals existed carry none and are read as before. A file is hashed at most once per process:
-a verified file is remembered by (path, size, mtime, inode), so reading it again costs one `stat`.
+a verified file is remembered by (path, size, inode, status-change time), so reading it again costs one `stat`
+(the status-change time moves with every write, rename or copy onto the path, and no tool can set it back).
 `$CLODS_BENCH_INTEGRITY_LOG` (a file path; for measuring the checks' cost only) appends one line per hash computed
 and per dataset check: `<kind> <seconds> <bytes>` (kinds: seal, seal-json, json, check-zip, check-file,
 dataset-files; a dataset check's line includes the check-file hashes it made).
@@ -38,7 +39,7 @@ _EOCD = b"PK\x05\x06"  # a zip's end-of-central-directory record: 22 bytes, then
 _BLOCK = 1 << 22
 
 _sealed_ok: dict[str, tuple[int, int, int]] = {}
-"""Per process: absolute path -> stat key (size, mtime, inode) of zip files whose seal was checked (or that have none)."""
+"""Per process: absolute path -> `_stamp` of zip files whose seal was checked (or that have none)."""
 _hashes: dict[str, tuple[tuple[int, int, int], str]] = {}
 """Per process: absolute path -> (stat key, SHA-256 of its bytes) of files `check_sha256` hashed."""
 
@@ -73,7 +74,7 @@ def check_zip(path: str | os.PathLike[str], remedy: str) -> None:
     """Raise the one-line `changed` error unless `path`'s content matches its seal (an unsealed file passes)."""
     target = Path(path)
     stat = target.stat()
-    key, skey = os.path.abspath(target), (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+    key, skey = os.path.abspath(target), _stamp(stat)
     if _sealed_ok.get(key) == skey:
         return
     size = stat.st_size
@@ -160,15 +161,20 @@ def _json_hash(doc: dict[str, Any]) -> str:
 
 def check_sha256(path: str | os.PathLike[str], expected: str, remedy: str, recorded: str = "recorded for it") -> None:
     """Raise the one-line `changed` error unless the SHA-256 of `path`'s bytes is `expected` (hashed once per process
-    while the file's size, mtime and inode stay)."""
+    while the file's size, inode and status-change time stay)."""
     target = Path(path)
     stat = target.stat()
-    key, skey = os.path.abspath(target), (stat.st_size, stat.st_mtime_ns, stat.st_ino)
+    key, skey = os.path.abspath(target), _stamp(stat)
     known = _hashes.get(key)
     got = known[1] if known is not None and known[0] == skey else _hash_file(target, stat.st_size, "check-file")
     _hashes[key] = (skey, got)
     if got != expected:
         raise changed(target, remedy, recorded)
+
+
+def _stamp(stat: os.stat_result) -> tuple[int, int, int]:
+    """What changes when a file's content may have: its size, inode and status-change time (ctime)."""
+    return (stat.st_size, stat.st_ino, stat.st_ctime_ns)
 
 
 def forget(path: str | os.PathLike[str] | None = None) -> None:

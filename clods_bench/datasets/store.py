@@ -54,6 +54,8 @@ MANIFEST_LOCK = ".manifest.lock"
 TRAJ_FIELDS = ("cells", "mesh_pos", "node_type", "world_pos")
 _DTYPES = {"cells": np.int32, "mesh_pos": np.float32, "node_type": np.int32, "world_pos": np.float32}
 _LOAD_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, json.JSONDecodeError)
+_FRAMES_COUNTED: dict[str, tuple[int, int, int]] = {}
+"""Per process: frame-array folders whose byte total `check_files` found right, by the folder's inode and ctime."""
 
 
 class DatasetStore:
@@ -363,9 +365,13 @@ class DatasetStore:
                 if not (folder / "zarr.json").is_file():
                     raise ClodsError("frame array missing", where=str(folder), hint=self.regenerate_hint())
                 integrity.check_sha256(folder / "zarr.json", record["sha256"], self.regenerate_hint(), "the dataset's manifest records for it")
-                size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
-                if size != record["bytes"]:
-                    raise ClodsError(f"frame array holds {size} bytes, manifest says {record['bytes']}", where=str(folder), hint=self.regenerate_hint())
+                info = folder.stat()  # a chunk added, removed or renamed in, or another folder here, moves its ctime
+                stamp = (info.st_ctime_ns, info.st_ino, record["bytes"])
+                if _FRAMES_COUNTED.get(str(folder.resolve())) != stamp:
+                    size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+                    if size != record["bytes"]:
+                        raise ClodsError(f"frame array holds {size} bytes, manifest says {record['bytes']}", where=str(folder), hint=self.regenerate_hint())
+                    _FRAMES_COUNTED[str(folder.resolve())] = stamp
 
     def _checked_file(self, record: dict[str, Any], verify: bool) -> Path:
         """The file of a manifest record, checked: present, its size, and its sha256 (`verify`: hashed now; else once

@@ -88,7 +88,7 @@ def test_a_verified_file_is_hashed_once_per_process_until_it_changes(tmp_path: P
         integrity.check_zip(path, "x")
     kinds = [line.split()[0] for line in log.read_text().splitlines()]
     assert kinds == ["seal", "check-zip"]
-    integrity.write_npz(path, x=np.arange(1000.0) + 1)  # rewritten: another inode and mtime
+    integrity.write_npz(path, x=np.arange(1000.0) + 1)  # rewritten: another inode and ctime
     integrity.check_zip(path, "x")
     assert [line.split()[0] for line in log.read_text().splitlines()] == ["seal", "check-zip", "seal", "check-zip"]
 

@@ -166,3 +166,16 @@ def test_reproduce_tables_use_the_plans_seeds_only(tiny_root: Path, tmp_path: Pa
     for suffix in (".csv", ".md", ".tex"):
         assert (tmp_path / "again" / f"t{suffix}").read_bytes() == (tmp_path / "first" / f"t{suffix}").read_bytes()
     assert (tmp_path / "more" / "t.csv").read_bytes() != (tmp_path / "first" / "t.csv").read_bytes()
+
+
+def test_the_consistency_check_reads_what_a_record_holds() -> None:
+    """Seeds 2 and 10 in numeric order; per-seed values without timings (a hand-written record) check the metrics only."""
+    rec = {"seeds": [10, 2], "metrics": {"m": {"mean": 2.0, "std": 1.0}}, "timings": {"t": {"mean": 5.0, "std": 0.0}},
+           "per_seed": {"2": {"metrics": {"m": 1.0}}, "10": {"metrics": {"m": 3.0}}}}  # fmt: skip
+    records.check_consistent(rec, "r.json")
+    rec["metrics"]["m"]["std"] = "x"
+    with pytest.raises(ClodsError, match=r"r.json: metric 'm': std x but its per-seed values give 1.0"):
+        records.check_consistent(rec, "r.json")
+    rec["seeds"] = [2]
+    with pytest.raises(ClodsError, match=r"lists seeds \[2\] but holds per-seed values of \[2, 10\]"):
+        records.check_consistent(rec, "r.json")

@@ -236,10 +236,10 @@ def aggregate(cfg: RunConfig, label: str, rdir: Path, extra_timings: dict[str, f
     return record
 
 
-def summary(per_seed: dict[Any, dict[str, Any]]) -> dict[str, Any]:
+def summary(per_seed: dict[Any, dict[str, Any]], sections: Sequence[str] = ("metrics", "timings")) -> dict[str, Any]:
     """{'metrics': {key: {'mean', 'std'}}, 'timings': {...}} over the given seeds' results."""
     out: dict[str, Any] = {}
-    for section in ("metrics", "timings"):
+    for section in sections:
         keys = sorted({k for r in per_seed.values() for k in r[section]})
         out[section] = {}
         for key in keys:
@@ -290,13 +290,15 @@ def check_consistent(rec: dict[str, Any], where: str) -> None:
     if not isinstance(per_seed, dict):
         return
     hint = f"the record was edited or damaged; {record_remedy(Path(where).parent)}"
-    listed = sorted(int(s) for s in rec.get("seeds", []))
-    if sorted(int(s) for s in per_seed) != listed:
-        raise ClodsError(f"lists seeds {listed} but holds per-seed values of {sorted(int(s) for s in per_seed)}", where=where, hint=hint)
+    listed = sorted((str(s) for s in rec.get("seeds") or []), key=_by_value)
+    if sorted(per_seed, key=_by_value) != listed:
+        raise ClodsError(f"lists seeds {_seed_list(listed)} but holds per-seed values of {_seed_list(per_seed)}", where=where, hint=hint)
     if not per_seed:
         return
-    again = summary({s: per_seed[str(s)] for s in listed})
-    for section in ("metrics", "timings"):
+    entries = [per_seed[s] for s in listed]
+    sections = [sec for sec in ("metrics", "timings") if all(isinstance(e, dict) and isinstance(e.get(sec), dict) for e in entries)]
+    again = summary({s: {sec: e[sec] for sec in sections} for s, e in zip(listed, entries)}, sections)
+    for section in sections:  # a section the per-seed values lack (a hand-written record) is not checked
         stored = rec.get(section) or {}
         for key in sorted(set(again[section]) | set(stored)):
             want = again[section].get(key, {})
@@ -307,8 +309,21 @@ def check_consistent(rec: dict[str, Any], where: str) -> None:
                                      where=where, hint=hint)  # fmt: skip
 
 
+def _by_value(seed: str) -> tuple[int, str]:
+    """Sort key of a seed written as text: by its number."""
+    return (int(seed) if seed.lstrip("-").isdigit() else 0, seed)
+
+
+def _seed_list(seeds: Any) -> str:
+    """Seeds as a sorted list for a message."""
+    return "[" + ", ".join(sorted((str(s) for s in seeds), key=_by_value)) + "]"
+
+
 def _same(stored: Any, recomputed: Any) -> bool:
-    a, b = _num(stored), _num(recomputed)
+    try:
+        a, b = _num(stored), _num(recomputed)
+    except (TypeError, ValueError):
+        return False
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)
     return math.isclose(a, b, rel_tol=CONSISTENCY_RTOL, abs_tol=1e-300)
