@@ -20,10 +20,10 @@ PLUGINS = "clods_bench.plugins"
 MAX_LINES = 450
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    # the root utilities: the package itself, errors, atomic files, the API version; devices, typed config loading
-    # and exact numerics on them
+    # the root utilities: the package itself, errors, atomic files, the API version; devices, typed config loading,
+    # exact numerics and the integrity seals on them
     ("clods_bench", "clods_bench.benchmark", "clods_bench.errors", "clods_bench.atomic", "clods_bench.api_version"),
-    ("clods_bench.devices", "clods_bench.typed_config", "clods_bench.numerics"),
+    ("clods_bench.devices", "clods_bench.typed_config", "clods_bench.numerics", "clods_bench.integrity"),
     ("clods_bench.datasets",),
     ("clods_bench.splatting",),
     # the benchmark core, in five steps

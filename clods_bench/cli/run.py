@@ -31,7 +31,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from clods_bench.benchmark.running.records import RECORD_FILE
+    from clods_bench.benchmark.running.records import RECORD_FILE, read_record
     from clods_bench.benchmark.running.runner import run_task
 
     cfg = run_config(args, task=args.task, sim=args.sim, renderer=args.renderer, predictor=args.predictor, label=args.label, train_subset=args.train_subset, seeds=args.seeds,
@@ -46,9 +46,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         summary = run_configs([("run", cfg)], make_executor(args.executor, args.ray_address, jobs), plugin_registry(), err_console)
         rdir = Path(summary[0]["record_dir"])
-    import json
-
-    rec = json.loads((rdir / RECORD_FILE).read_text())
+    rec = read_record(rdir / RECORD_FILE)
     table = Table(title=f"{rec['task']} / {rec['label']} / {rec['scene']} / preset {rec['preset']} ({len(rec['seeds'])} seeds)")
     table.add_column("metric")
     table.add_column("mean ± std", justify="right")

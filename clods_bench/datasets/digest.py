@@ -9,12 +9,14 @@ one over the decoded frames, so a comparison names the first frame at which two 
 from __future__ import annotations
 
 import hashlib
+import json
 from typing import Any
 
 import numpy as np
 
 from clods_bench.datasets.frame_store import FrameArray
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import ClodsError
 
 DIGEST_VERSION = 1
 SHORT = 16  # hex characters kept per frame digest
@@ -93,22 +95,35 @@ trajectory): the meshes then stand for the dataset."""
 
 def content_digest(store: DatasetStore) -> str:
     """One 16-hex-digit digest of a complete dataset's arrays (meshes, and frames up to FRAMES_DIGEST_MAX_BYTES),
-    computed once and kept in the dataset folder (a complete dataset never changes; `data generate --force` removes
-    the folder with it)."""
-    import json
-
+    kept in the dataset folder and trusted only while it matches: the dataset's files are checked against their
+    manifest records first (`DatasetStore.check_files`: a changed array is one error naming its file), and the kept
+    digest is recomputed when its own content hash fails or the manifest's file records changed since it was made.
+    A kept digest written before these checks (no `files` field) is read as before."""
+    from clods_bench import integrity
     from clods_bench.atomic import write_json
 
+    store.check_files()
+    files = files_fingerprint(store)
     path = store.root / CONTENT_DIGEST_FILE
     try:
-        return str(json.loads(path.read_text())["digest"])
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
+        kept = json.loads(path.read_text())
+        integrity.check_json(kept, path, "")
+        if kept.get("files", files) == files:
+            return str(kept["digest"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ClodsError):
+        pass  # missing, damaged or out of date: computed again from the arrays
     frames = _stored_frames_bytes(store) <= FRAMES_DIGEST_MAX_BYTES
     full = dataset_digest(store, frames=frames)
     short = hashlib.sha256(json.dumps(full, sort_keys=True).encode()).hexdigest()[:SHORT]
-    write_json(path, {"version": DIGEST_VERSION, "frames": frames, "digest": short})
+    write_json(path, integrity.seal_json({"version": DIGEST_VERSION, "frames": frames, "digest": short, "files": files}))
     return short
+
+
+def files_fingerprint(store: DatasetStore) -> str:
+    """SHA-256 (16 hex digits) of the manifest's file records (`DatasetStore.file_records`): what a kept content digest
+    was computed from."""
+    text = json.dumps(store.file_records(), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:SHORT]
 
 
 def _stored_frames_bytes(store: DatasetStore) -> float:

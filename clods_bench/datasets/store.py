@@ -2,7 +2,9 @@
 
 Layout of `root` (schema version 2):
 - `manifest.json`: schema version, scene, the data config, cameras, texture, and one entry per
-  *complete* trajectory (index, split, seed, file records with sha256 and byte size, array shapes);
+  *complete* trajectory (index, split, seed, file records with sha256 and byte size, array shapes); a mesh file
+  (and the render setup) is checked against its sha256 when first read in a process, a frame array's `zarr.json`
+  on open and each of its chunks by its own crc32c when decoded;
 - `traj_0000.npz`: cells, mesh_pos, node_type, world_pos, dt and `meta` (a JSON string);
 - `frames_0000.zarr/`: (T, N, H, W, 3) uint8 multi-view frames, chunked per camera and a few frames,
   compressed and checksummed per chunk (see `frame_store`), read lazily with `frames(index)`;
@@ -28,6 +30,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from clods_bench import integrity
 from clods_bench.atomic import atomic_path, file_lock, write_json, write_npz
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.frame_store import FrameArray, LazyFrames, write_frames
@@ -43,7 +46,6 @@ from clods_bench.datasets.store_manifest import (
     normalise,
     read_manifest,
     remove_stale_temp_files,
-    sha256_of,
 )
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -52,6 +54,8 @@ MANIFEST_LOCK = ".manifest.lock"
 TRAJ_FIELDS = ("cells", "mesh_pos", "node_type", "world_pos")
 _DTYPES = {"cells": np.int32, "mesh_pos": np.float32, "node_type": np.int32, "world_pos": np.float32}
 _LOAD_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, json.JSONDecodeError)
+_FRAMES_COUNTED: dict[str, tuple[int, int, int]] = {}
+"""Per process: frame-array folders whose byte total `check_files` found right, by the folder's inode and ctime."""
 
 
 class DatasetStore:
@@ -304,6 +308,12 @@ class DatasetStore:
         default = self.root / "texture.png"
         return default if default.is_file() else None
 
+    def file_records(self) -> dict[str, Any]:
+        """The manifest's file records (name, sha256, bytes): every complete trajectory's, the render setup's, the texture's."""
+        records = {str(i): self._entries[i]["files"] for i in sorted(self.completed_indices())}
+        return json.loads(json.dumps({"trajectories": records, "render_setup": self._manifest.get("render_setup"),
+                                      "texture": self._manifest.get("texture")}))  # fmt: skip
+
     def completed_indices(self) -> set[int]:
         """Indices whose files were completely written (what a resumed generation can skip)."""
         return {i for i, e in self._entries.items() if e.get("complete") is True}
@@ -330,16 +340,52 @@ class DatasetStore:
                              where=str(self.root / MANIFEST), hint="re-run generation to complete it")
         return entry
 
+    def regenerate_hint(self) -> str:
+        """What to do about a damaged file of this dataset: generate it again (or import it again)."""
+        if isinstance(self._manifest.get("config"), dict) and "scene_spec" in self._manifest["config"]:
+            return f"delete {self.root} and run again, which regenerates it (or: clods-bench data generate --force with the run's settings)"
+        return f"import the dataset again into {self.root}"
+
+    def check_files(self) -> None:
+        """Every file of every complete trajectory (and the render setup) against its manifest record: mesh files by
+        sha256 (once per process while a file is unchanged on disk), frame arrays by their `zarr.json` sha256 and
+        byte total (their chunks carry their own crc32c, checked when decoded)."""
+        with integrity.timed("dataset-files"):
+            self._check_files()
+
+    def _check_files(self) -> None:
+        if self._manifest.get("render_setup"):
+            self._checked_file(self._manifest["render_setup"], verify=False)
+        for index in sorted(self.completed_indices()):
+            files = self._entries[index]["files"]
+            if "traj" in files:
+                self._checked_file(files["traj"], verify=False)
+            if "frames" in files:  # zarr.json by its sha256, the chunks by their byte total (and crc32c when decoded)
+                record, folder = files["frames"], self.root / files["frames"]["name"]
+                if not (folder / "zarr.json").is_file():
+                    raise ClodsError("frame array missing", where=str(folder), hint=self.regenerate_hint())
+                integrity.check_sha256(folder / "zarr.json", record["sha256"], self.regenerate_hint(), "the dataset's manifest records for it")
+                info = folder.stat()  # a chunk added, removed or renamed in, or another folder here, moves its ctime
+                stamp = (info.st_ctime_ns, info.st_ino, record["bytes"])
+                if _FRAMES_COUNTED.get(str(folder.resolve())) != stamp:
+                    size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+                    if size != record["bytes"]:
+                        raise ClodsError(f"frame array holds {size} bytes, manifest says {record['bytes']}", where=str(folder), hint=self.regenerate_hint())
+                    _FRAMES_COUNTED[str(folder.resolve())] = stamp
+
     def _checked_file(self, record: dict[str, Any], verify: bool) -> Path:
+        """The file of a manifest record, checked: present, its size, and its sha256 (`verify`: hashed now; else once
+        per process while the file is unchanged on disk)."""
         path = self.root / record["name"]
         if not path.is_file():
-            raise ClodsError("file missing", where=str(path), hint="re-run generation, or regenerate with --force")
+            raise ClodsError("file missing", where=str(path), hint=self.regenerate_hint())
         size = path.stat().st_size
         if size != record["bytes"]:
             raise ClodsError(f"truncated: expected {record['bytes']} bytes, found {size}" if size < record["bytes"]
-                             else f"wrong size: expected {record['bytes']} bytes, found {size}", where=str(path))
-        if verify and sha256_of(path) != record["sha256"]:
-            raise ClodsError("sha256 mismatch: file content differs from the manifest (corrupted)", where=str(path))
+                             else f"wrong size: expected {record['bytes']} bytes, found {size}", where=str(path), hint=self.regenerate_hint())
+        if verify:
+            integrity.forget(path)
+        integrity.check_sha256(path, record["sha256"], self.regenerate_hint(), recorded="the dataset's manifest records for it")
         return path
 
     def _check_frames(self, index: int, frames: np.ndarray, num_steps: int) -> None:

@@ -1,5 +1,6 @@
 """DatasetStore: round trip, resume after interruption, and clear errors for damaged files."""
 
+import hashlib
 import json
 import os
 import shutil
@@ -162,11 +163,11 @@ def test_corrupt_content_same_size(tmp_path):
     store = new_store(tmp_path, 1)
     path = tmp_path / "ds" / "traj_0000.npz"
     path.write_bytes(b"\0" * path.stat().st_size)
-    with pytest.raises(ClodsError, match="sha256") as info:
+    with pytest.raises(ClodsError, match="SHA-256 the dataset's manifest records") as info:
         store.load_trajectory(0, verify=True)
     assert "traj_0000.npz" in str(info.value)
-    with pytest.raises(ClodsError, match="cannot read trajectory file") as info:
-        store.load_trajectory(0)
+    with pytest.raises(ClodsError, match="changed or damaged after it was written") as info:
+        store.load_trajectory(0)  # checked on first read too, not only by verify
     assert "traj_0000.npz" in str(info.value)
     chunk = tmp_path / "ds" / "frames_0000.zarr" / "c.0.1.0.0.0"
     chunk.write_bytes(b"\0" * chunk.stat().st_size)
@@ -247,8 +248,8 @@ def test_nan_in_world_pos(tmp_path):
     arrays["world_pos"][3, 2, 1] = np.nan
     np.savez_compressed(path, **arrays)
     m = json.loads((tmp_path / "ds" / "manifest.json").read_text())
-    m["trajectories"][0]["files"]["traj"]["bytes"] = path.stat().st_size
-    (tmp_path / "ds" / "manifest.json").write_text(json.dumps(m))
+    m["trajectories"][0]["files"]["traj"].update(bytes=path.stat().st_size, sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+    (tmp_path / "ds" / "manifest.json").write_text(json.dumps(m))  # the other code kept the manifest in step
     with pytest.raises(ClodsError, match="non-finite") as info:
         DatasetStore.open(tmp_path / "ds").load_trajectory(0)
     assert "traj_0000.npz" in str(info.value) and "world_pos" in str(info.value)

@@ -4,7 +4,8 @@ Layout under the cache root: `stage1-<digest>.pt` (a pickled fitted renderer) an
 directory per extraction identity (`meta.json` says what it is), holding `traj_<i>.npz` for each
 finished trajectory and `traj_<i>.partial.npz` for one interrupted mid-way: extraction resumes
 from its last finished frame. The key hashes everything that changes the result, so a changed
-setting never reads a stale mesh.
+setting never reads a stale mesh. Every file carries the SHA-256 of its bytes (`clods_bench.integrity`),
+checked when read: a changed mesh is one error naming the file, never used.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from clods_bench.atomic import write_json, write_npz
+from clods_bench import integrity
+from clods_bench.atomic import write_json
 from clods_bench.benchmark.core.cache_keys import CACHE_FORMAT
 from clods_bench.errors import ClodsError
 
@@ -63,6 +65,7 @@ class ExtractionCache:
         path = self.path(index, partial)
         if not path.exists():
             return None
+        integrity.check_zip(path, "delete it to extract again")
         try:
             with np.load(path, allow_pickle=False) as z:
                 return Extracted(z["world_pos"], z["iterations"], z["loss"], z["seconds"])
@@ -74,6 +77,6 @@ class ExtractionCache:
         is rewritten after every frame, so it is stored undeflated: deflating 250 paper frames (4.7 MB) took 0.28 s a
         save on the development machine, and stage 2's wall time per frame grew from 0.98 s to 1.53 s by frame 250
         on an H200 machine."""
-        write_npz(self.path(index, partial), compress=not partial, world_pos=ext.world_pos, iterations=ext.iterations, loss=ext.loss, seconds=ext.seconds)
+        integrity.write_npz(self.path(index, partial), compress=not partial, world_pos=ext.world_pos, iterations=ext.iterations, loss=ext.loss, seconds=ext.seconds)
         if not partial:
             self.path(index, partial=True).unlink(missing_ok=True)

@@ -19,7 +19,8 @@ from typing import Any, Sequence
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from clods_bench.atomic import file_lock, write_npz
+from clods_bench import integrity
+from clods_bench.atomic import file_lock
 from clods_bench.benchmark.clods.cache import ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.extract import extract_trajectory, stage2_stats
@@ -54,6 +55,7 @@ def stage0_mesh(ctx: TaskContext, opts: ClodsConfig, cfg: Stage0Config, index: i
     path = cache_root(ctx, opts) / f"stage0-{key}.npz"
     with file_lock(path.with_suffix(".lock")):
         if path.is_file():
+            integrity.check_zip(path, "delete it to reconstruct it again")
             try:
                 with np.load(path) as z:
                     mesh = ClothMesh(z["cells"], z["mesh_pos"], z["node_type"], z["rest_pos"])
@@ -62,7 +64,7 @@ def stage0_mesh(ctx: TaskContext, opts: ClodsConfig, cfg: Stage0Config, index: i
             except (OSError, KeyError, ValueError) as exc:
                 raise ClodsError(f"unreadable stage-0 cache file ({type(exc).__name__}: {exc})", where=str(path), hint="delete it") from None
         mesh, stats = reconstruct_initial_mesh(images, cameras, cfg, num_nodes)
-        write_npz(path, cells=mesh.cells, mesh_pos=mesh.mesh_pos, node_type=mesh.node_type, rest_pos=mesh.rest_pos,
+        integrity.write_npz(path, cells=mesh.cells, mesh_pos=mesh.mesh_pos, node_type=mesh.node_type, rest_pos=mesh.rest_pos,
                   seconds=np.float64(stats["stage0_seconds"]), stats=np.array(json.dumps(stats, sort_keys=True)))  # fmt: skip
     return mesh, {**stats, "stage0_cost_seconds": stats["stage0_seconds"]}
 

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from clods_bench.atomic import atomic_path, file_lock, write_json
+from clods_bench import integrity
+from clods_bench.atomic import file_lock, write_json
 from clods_bench.benchmark.clods.config import ClodsConfig, clods_config
 from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.cache_keys import digest
@@ -78,6 +79,7 @@ def fit_stage1_keyed(
     cost_file = path.with_suffix(".json")  # the fit's recorded cost, so a cached fit still counts in training time
     with file_lock(path.with_suffix(".lock")):  # a parallel job fitting the same renderer: wait, then read its fit
         if path.exists():
+            integrity.check_zip(path, "delete it to fit again")  # a fit changed since it was written is never used
             try:
                 renderer = torch.load(path, map_location="cpu", weights_only=False)
             except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
@@ -98,8 +100,7 @@ def fit_stage1_keyed(
         with torch_threads(opts.num_threads):
             stats = renderer.fit(np.asarray(initial, np.float32), cells, mesh_pos, unit, list(cameras)) or {}
         seconds = time.perf_counter() - t0
-        with atomic_path(path) as tmp:
-            torch.save(renderer, tmp)
+        integrity.save_torch(renderer, path)
         write_json(cost_file, {"seconds": seconds})
         out = {"stage1_seconds": seconds, "stage1_cost_seconds": seconds, "stage1_cached": 0.0}
         out.update({f"stage1/{k}": float(v) for k, v in stats.items()})

@@ -131,6 +131,8 @@ def load_config(
         key, value = parse_override(item)
         _set_dotted(merged, key, value)
     cfg = dataclass_from_dict(RunConfig, merged, where=" + ".join(sources) + (" + --set" if overrides else ""))
+    if not cfg.seeds:  # refused before any work: an empty run would record no seed
+        raise ClodsError("is empty: a run needs at least one seed", where="seeds", hint="e.g. --set seeds=[0]")
     cfg.data = resolve_dataset_path(cfg.data)
     return cfg
 

@@ -15,7 +15,7 @@ import pandas as pd
 from clods_bench.atomic import write_text
 from clods_bench.benchmark.core.descriptors import TableLayout
 from clods_bench.benchmark.core.registry import Registry, default_registry
-from clods_bench.benchmark.running.records import iter_records, runs_label
+from clods_bench.benchmark.running.records import RECORD_FILE, check_consistent, iter_records, runs_label
 from clods_bench.errors import ClodsError
 
 
@@ -97,10 +97,12 @@ def default_caption(task: str, scene: str, preset: str, records: list[dict[str, 
 
 def write_tables(runs_dir: Path | Sequence[Path], out_dir: Path, task: str = "cdg", registry: Registry | None = None) -> list[Path]:
     """Write the tables of `task` from its records (under one runs folder or several) in the layout the task declares:
-    one markdown/LaTeX/CSV set per (scene, preset), or per preset; return the paths."""
+    one markdown/LaTeX/CSV set per (scene, preset), or per preset; return the paths. Every seed of a record counts;
+    a record whose means or stds differ from its per-seed values is refused (`check_consistent`)."""
     layout = table_layout(task, registry or default_registry())
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for _, rec in iter_records(runs_dir, task):
+    for rdir, rec in iter_records(runs_dir, task):
+        check_consistent(rec, str(rdir / RECORD_FILE))
         groups.setdefault((rec["scene"] if layout.per == "scene" else "", rec["preset"]), []).append(rec)
     if not groups:
         raise ClodsError(f"no '{task}' run records found", where=runs_label(runs_dir), hint=f"run e.g. `clods-bench run {task} ...` first")

@@ -29,7 +29,7 @@ from clods_bench.benchmark.core.resolve import resolve_plugins
 from clods_bench.benchmark.outputs.tables import layout_frames, scored_scenes, table_layout, write_table
 from clods_bench.benchmark.reproduction import run_digests
 from clods_bench.benchmark.running.environment import git_commit, package_versions
-from clods_bench.benchmark.running.records import RECORD_FILE, restrict
+from clods_bench.benchmark.running.records import RECORD_FILE, read_record, restrict
 from clods_bench.errors import ClodsError
 from clods_bench.typed_config import dataclass_from_dict
 
@@ -298,7 +298,9 @@ def reproduce(
         if not summary.get("complete", True):
             unfinished.setdefault(run.table, []).append(run.label + (f" @{run.scene}" if run.scene else ""))
             continue
-        rec = json.loads((Path(summary["record_dir"]) / RECORD_FILE).read_text())
+        # The plan's seeds only: a runs folder may hold more seeds of this config (records accumulate), and the
+        # tables of a plan stay those of its seeds.
+        rec = restrict(read_record(Path(summary["record_dir"]) / RECORD_FILE), cfg.seeds)
         rec["label"] = run.label
         records[run_name(run)] = rec
         seed_seconds = [s["timings"].get("seed_seconds") for s in rec["per_seed"].values()]

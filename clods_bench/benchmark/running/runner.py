@@ -16,7 +16,15 @@ from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.determinism import seed_everything
 from clods_bench.benchmark.core.registry import Registry
 from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
-from clods_bench.benchmark.running.records import aggregate, default_label, record_dir, reusable_seed_result, save_seed_result
+from clods_bench.benchmark.running.records import (
+    aggregate,
+    default_label,
+    record_dir,
+    record_identity,
+    require_seeds,
+    reusable_seed_result,
+    save_seed_result,
+)
 from clods_bench.datasets.digest import content_digest
 from clods_bench.datasets.store import DatasetStore
 
@@ -34,12 +42,14 @@ def run_task(
     ensure_data: Callable[[RunConfig, Registry, bool], object] | None = None,
 ) -> Path:
     """Run every seed of `cfg.task` not already finished, inside the exact scope unless host paths are asked for
-    ($CLODS_BENCH_DETERMINISTIC=0); return the record directory."""
+    ($CLODS_BENCH_DETERMINISTIC=0), then rebuild the record from every seed finished in its folder; return the
+    record directory."""
     with numerics.maybe_exact():
         return _run_task(cfg, registry, console or Console(stderr=True), ensure_data)
 
 
 def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data: Callable[[RunConfig, Registry, bool], object] | None) -> Path:
+    require_seeds(cfg)
     cfg = resolve_plugins(cfg, registry)
     task = registry.get("task", cfg.task)
     rdir = record_dir(cfg, registry)
@@ -55,13 +65,12 @@ def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data:
         ensure_data(dataclasses.replace(cfg, data=d), registry, cfg.progress)
     run_timings["data_seconds"] = time.perf_counter() - t0
 
-    per_seed = {}
     data_digests = run_data_digests(cfg, registry)
+    identity = record_identity(cfg, data_digests)
     for seed in cfg.seeds:
-        done = reusable_seed_result(rdir, seed, data_digests)
+        done = reusable_seed_result(rdir, seed, data_digests, identity["config"])
         if done is not None:
             console.print(f"[dim]seed {seed}: finished earlier, reusing {rdir / f'seed_{seed}'}[/dim]")
-            per_seed[seed] = done
             continue
         console.print(f"[bold]{cfg.task}[/bold] seed {seed} ({rdir})")
         work = rdir / f"seed_{seed}"
@@ -76,6 +85,8 @@ def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data:
         result.extra["stage_digests"] = digests.result()
         result.timings.setdefault("seed_seconds", time.perf_counter() - t0)
         result.timings.setdefault("seed_cpu_seconds", time.process_time() - c0)  # this process's CPU time: robust to a loaded host
-        per_seed[seed] = save_seed_result(rdir, seed, result, data_digests)
-    aggregate(cfg, default_label(cfg, registry), rdir, per_seed, run_timings)
+        save_seed_result(rdir, seed, result, data_digests, identity)
+    record = aggregate(cfg, default_label(cfg, registry), rdir, run_timings, data_digests)
+    for seed, why in record.get("left_out", {}).items():
+        console.print(f"[yellow]seed {seed} left out of the record: {why}[/yellow]")
     return rdir

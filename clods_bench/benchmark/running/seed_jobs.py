@@ -18,7 +18,7 @@ from rich.console import Console
 from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
 from clods_bench.benchmark.running.executors import LocalExecutor, RayExecutor, SeedJob
-from clods_bench.benchmark.running.records import load_seed_result, record_dir, reusable_seed_result
+from clods_bench.benchmark.running.records import config_digest, load_seed_result, record_dir, require_seeds, reusable_seed_result
 from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.errors import ClodsError
 from clods_bench.typed_config import dataclass_from_dict
@@ -61,6 +61,8 @@ def run_configs(
         raise ClodsError("a time budget needs the local executor (Ray schedules every job at once)", where="--budget")
     from clods_bench.benchmark.running.runner import run_data_digests, run_task
 
+    for _, cfg in configs:
+        require_seeds(cfg)
     configs = [(name, resolve_plugins(absolute_paths(cfg), registry)) for name, cfg in configs]
     parallel = executor.name == "ray" or getattr(executor, "jobs", 1) > 1
     seen: set[Path] = set()
@@ -82,7 +84,7 @@ def run_configs(
             return False
         if name not in digests:
             digests[name] = run_data_digests(cfg, registry)
-        return reusable_seed_result(rdir, seed, digests[name]) is not None
+        return reusable_seed_result(rdir, seed, digests[name], config_digest(cfg)) is not None
 
     # Seed-major order: every run's first seed before any second seed. Parallel workers then start different
     # runs together instead of two seeds of one run that would wait on each other's shared cached stages.

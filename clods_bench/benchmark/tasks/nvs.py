@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from rich.progress import Progress
 
-from clods_bench.atomic import atomic_path
+from clods_bench import integrity
 from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
@@ -131,8 +131,7 @@ def _set_rng_state(state: dict[str, Any]) -> None:
 
 def _save_partial(path: Path, state: dict[str, Any]) -> None:
     """Write the resume state atomically (a kill mid-write leaves the previous one)."""
-    with atomic_path(path) as tmp:
-        torch.save({**state, "rng": _rng_state()}, tmp)
+    integrity.save_torch({**state, "rng": _rng_state()}, path)
 
 
 def _load_partial(path: Path, key: dict[str, Any]) -> dict[str, Any] | None:
@@ -140,6 +139,7 @@ def _load_partial(path: Path, key: dict[str, Any]) -> dict[str, Any] | None:
     of an older format or another setting is not used, and is replaced by the next save)."""
     if not path.is_file():
         return None
+    integrity.check_zip(path, "delete it to start this seed again")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a truncated or foreign file

@@ -23,7 +23,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import Progress
 
-from clods_bench.atomic import write_npz
+from clods_bench import integrity
 from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
@@ -97,6 +97,7 @@ def long_ground_truth(ctx: TaskContext, scene: Any, traj: Trajectory, index: int
     path = data_dir.with_name(f"{data_dir.name}-long{frames}") / f"traj_{index:04d}.npz"
     world = None
     if path.is_file():
+        integrity.check_zip(path, "delete it to simulate it again")
         try:
             with np.load(path, allow_pickle=False) as npz:
                 world = npz["world_pos"]
@@ -108,7 +109,7 @@ def long_ground_truth(ctx: TaskContext, scene: Any, traj: Trajectory, index: int
             world = simulate_scene(scene, mesh, frames, int(seed)).world_pos
         except ClodsError:
             return None
-        write_npz(path, world_pos=world)
+        integrity.write_npz(path, world_pos=world)
     stored = traj.world_pos
     if world.shape != (frames, *stored.shape[1:]) or not np.allclose(world[: len(stored)], stored, atol=1e-5):
         return None

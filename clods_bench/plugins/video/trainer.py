@@ -26,7 +26,7 @@ import torch
 from rich.progress import Progress
 from torch import nn
 
-from clods_bench.atomic import atomic_path
+from clods_bench import integrity
 from clods_bench.benchmark.core.interfaces import FitContext, check_video
 from clods_bench.devices import check_device_name, torch_device
 from clods_bench.errors import ClodsError
@@ -221,13 +221,13 @@ class WindowPredictor(abc.ABC, Generic[C]):
             "scheduler": sched.state_dict(),
             "train_seconds": float(seconds),
         }
-        with atomic_path(path) as tmp:
-            torch.save(payload, tmp)
+        integrity.save_torch(payload, path)  # with its SHA-256, checked by _resume
 
     def _resume(self, path: Path, digest: str, model: nn.Module, opt: Any, sched: Any, seed: int) -> tuple[int, list[float], np.random.Generator, float]:
         """(step, losses, window sampler, training seconds so far) of the checkpoint at `path`, loaded into the model,
         optimizer and scheduler; a checkpoint of another config or other videos is a ClodsError."""
-        hint = "delete it (or use another work directory) to train from scratch"
+        hint = "delete it to train from scratch (or use another work directory)"
+        integrity.check_zip(path, hint)
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from clods_bench import numerics
+from clods_bench import integrity, numerics
 from clods_bench.benchmark.core.registry import default_registry
 from clods_bench.benchmark.running.executors import LocalExecutor
 from clods_bench.benchmark.running.records import seed_result_path
@@ -21,14 +21,15 @@ from clods_bench.errors import ClodsError
 from tests.conftest import tiny_config
 
 
-def _edit(path: Path, **changes: object) -> None:
+def _edit(path: Path, seal: bool = True, **changes: object) -> None:
+    """Rewrite a result as if it had been written so (sealed with its new content hash, or written before seals)."""
     doc = json.loads(path.read_text())
     for key, value in changes.items():
         if value is None:
             doc.pop(key, None)
         else:
             doc[key] = value
-    path.write_text(json.dumps(doc))
+    path.write_text(json.dumps(integrity.seal_json(doc) if seal else {k: v for k, v in doc.items() if k != integrity.JSON_KEY}))
 
 
 @pytest.fixture()
@@ -84,7 +85,7 @@ def test_a_result_under_other_pins_is_an_error(finished, monkeypatch: pytest.Mon
 
 def test_a_result_written_before_provenance_was_recorded_is_reused(finished) -> None:
     cfg, path = finished
-    _edit(path, data_digests=None, numerics=None)
+    _edit(path, seal=False, data_digests=None, numerics=None, identity=None)
     before = path.read_text()
     run_task(cfg, default_registry(), Console(quiet=True))
     assert path.read_text() == before

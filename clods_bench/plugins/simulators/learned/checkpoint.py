@@ -2,7 +2,9 @@
 
 A checkpoint records the simulator name, the config digest and the digest of the training
 meshes' topologies next to the trainer state; loading it into a different simulator, config
-or mesh raises ClodsError instead of silently mixing incompatible weights.
+or mesh raises ClodsError instead of silently mixing incompatible weights. Each file carries the
+SHA-256 of its bytes (`clods_bench.integrity`), checked before it is loaded: changed weights are
+one error naming the file, never used.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from typing import Any, Iterable
 
 import torch
 
-from clods_bench.atomic import atomic_path
+from clods_bench import integrity
 from clods_bench.errors import ClodsError
 
 CHECKPOINT_FORMAT = 1
@@ -31,7 +33,7 @@ def save_checkpoint(path: Path, simulator: str, config_digest: str, meshes: str,
 
 def load_checkpoint(path: Path, simulator: str, config_digest: str, meshes: str) -> dict[str, Any]:
     """The checkpoint's payload, after checking it belongs to this simulator, config and meshes."""
-    hint = "delete it (or use another work directory) to train from scratch"
+    hint = "delete it to train from scratch (or use another work directory)"
     payload = _read(path, "checkpoint", "trainer", hint)
     if payload["simulator"] != simulator:
         raise ClodsError(
@@ -90,14 +92,15 @@ def load_snapshot(path: Path, simulator: str, config_digest: str, meshes: str) -
 
 
 def _write(path: Path, simulator: str, config_digest: str, meshes: str, **content: Any) -> None:
-    """Save a checkpoint or snapshot payload (format, owner, digests and `content`) in one atomic rename."""
+    """Save a checkpoint or snapshot payload (format, owner, digests and `content`) and its SHA-256 in one atomic rename."""
     payload = {"format": CHECKPOINT_FORMAT, "simulator": simulator, "config_digest": config_digest, "mesh_digest": meshes, **content}
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    integrity.save_torch(payload, path)
 
 
 def _read(path: Path, kind: str, content_key: str, hint: str) -> dict[str, Any]:
-    """A payload `_write` saved, holding `content_key`; one ClodsError naming the file if it is unreadable or foreign."""
+    """A payload `_write` saved, holding `content_key`; one ClodsError naming the file if it is unreadable, changed since
+    it was written, or foreign."""
+    integrity.check_zip(path, hint)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
