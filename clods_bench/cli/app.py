@@ -97,8 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             stack.enter_context(plugin_options(args.strict_plugins, err_console))
             return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:
-        return failures.report(exc, args, err_console)
+        return failures.report(exc, args, err_console, argv)
     except Exception as exc:  # one line; the traceback with --debug (or, for a bug, in the file the line names)
         if args.debug:
             raise
-        return failures.report(exc, args, err_console)
+        return failures.report(exc, args, err_console, argv)

@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import shlex
 import signal
-import sys
 import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 from rich.console import Console
 from rich.markup import escape
@@ -34,18 +34,19 @@ TRACKER_LABELS = ("issues", "issue tracker", "bug tracker", "tracker", "bugs")
 """`[project.urls]` labels (case-insensitive) that name the issue tracker."""
 
 
-def report(exc: BaseException, args: argparse.Namespace | None, console: Console) -> int:
-    """Print the one line that names `exc` (and where it happened) on `console`; return the exit status."""
+def report(exc: BaseException, args: argparse.Namespace | None, console: Console, argv: Sequence[str] = ()) -> int:
+    """Print the one line that names `exc` (and where it happened) on `console`; return the exit status. `argv`: the
+    command's arguments, written at the top of a traceback file."""
     if isinstance(exc, KeyboardInterrupt):
         by = " by SIGTERM" if str(exc) == f"signal {int(signal.SIGTERM)}" else ""
         console.print(INTERRUPTED.replace("interrupted", f"interrupted{by}", 1), highlight=False, markup=False)
         return EXIT_INTERRUPTED
     if isinstance(exc, PluginError) and exc.builtin:
-        return _internal(exc, exc.message, args, console)
+        return _internal(exc, exc.message, args, console, argv)
     if isinstance(exc, ClodsError):
         line = exc.message
         if isinstance(exc, PluginError):  # a third-party plugin's bug: its author wants the traceback
-            saved = save_traceback(exc, args)
+            saved = save_traceback(exc, args, argv)
             line += f" (traceback: {saved})" if saved else ""
         console.print(f"[bold red]error:[/bold red] {escape(line)}", highlight=False)
         return EXIT_PROBLEM
@@ -55,12 +56,12 @@ def report(exc: BaseException, args: argparse.Namespace | None, console: Console
         console.print(f"[bold red]error:[/bold red] {escape(what)}{escape(f' (stage: {where})') if where else ''}; {escape(advice)}", highlight=False)
         return EXIT_PROBLEM
     where = stage_of(exc)
-    return _internal(exc, f"{type(exc).__name__}: {exc}" + (f" (stage: {where})" if where else ""), args, console)
+    return _internal(exc, f"{type(exc).__name__}: {exc}" + (f" (stage: {where})" if where else ""), args, console, argv)
 
 
-def _internal(exc: BaseException, line: str, args: argparse.Namespace | None, console: Console) -> int:
+def _internal(exc: BaseException, line: str, args: argparse.Namespace | None, console: Console, argv: Sequence[str]) -> int:
     """The line of a clods-bench bug: what failed, where to report it, the file holding the traceback."""
-    saved = save_traceback(exc, args)
+    saved = save_traceback(exc, args, argv)
     keep = f"; please report it at {issue_tracker()} with the traceback saved in {saved}" if saved else f"; please report it at {issue_tracker()}"
     console.print(f"[bold red]internal error:[/bold red] {escape(line)} (a bug in clods-bench{escape(keep)})", highlight=False)
     return EXIT_INTERNAL
@@ -119,13 +120,13 @@ def traceback_dir(args: argparse.Namespace | None) -> Path:
     return Path.cwd()
 
 
-def save_traceback(exc: BaseException, args: argparse.Namespace | None) -> Path | None:
-    """Write `exc`'s traceback (with its causes) and the command line to `clods-bench-traceback-<time>-<pid>.txt`
+def save_traceback(exc: BaseException, args: argparse.Namespace | None, argv: Sequence[str] = ()) -> Path | None:
+    """Write the command line `argv` and `exc`'s traceback (with its causes) to `clods-bench-traceback-<time>-<pid>.txt`
     atomically; its path, or None when it could not be written (the line then names no file)."""
     from clods_bench.atomic import write_text
 
     path = traceback_dir(args) / f"clods-bench-traceback-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
-    text = f"clods-bench {' '.join(sys.argv[1:])}\n\n" + "".join(traceback.format_exception(exc))
+    text = f"clods-bench {shlex.join(argv)}\n\n" + "".join(traceback.format_exception(exc))
     try:
         write_text(path, text)
     except Exception:  # noqa: BLE001 - a full disk must not hide the error being reported
