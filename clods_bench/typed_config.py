@@ -134,8 +134,9 @@ def check_number(value: Any, where: str, minimum: float | None = None, inclusive
 
 
 def check_finite_fields(obj: Any, where: str) -> None:
-    """Raise ClodsError naming the first field of dataclass `obj` (nested dataclasses, lists and mappings included)
-    that holds a float NaN or infinity: no option of a run is meaningful at NaN, and "no limit" is spelt null."""
+    """Raise ClodsError naming the first field of `obj` (a dataclass or a mapping; nested dataclasses, lists and
+    mappings included) that holds a float NaN or infinity: no option of a run is meaningful at NaN, and "no limit"
+    is spelt null."""
     for dotted, value in _numbers(obj, where):
         if not math.isfinite(value):
             raise ClodsError(f"must be a finite number, got {value!r}", where=dotted)

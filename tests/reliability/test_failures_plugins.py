@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import os
+import pickle
 import re
 import sys
 import warnings
@@ -21,6 +22,7 @@ from clods_bench.benchmark.core.interfaces import CONTRACT_ULPS, RolloutInput
 from clods_bench.benchmark.running import records
 from clods_bench.cli import main
 from clods_bench.datasets.store import DatasetStore
+from clods_bench.errors import PluginError
 from clods_bench.plugins.simulators.baselines import ConstantVelocity
 from tests.conftest import TINY, tiny_config
 from tests.plugin_packages import install, only_own_plugins
@@ -228,3 +230,15 @@ def test_permission_denied_names_the_path(tmp_path: Path, monkeypatch: pytest.Mo
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"error: permission denied: {record}; make it writable or point runs_dir / data.root elsewhere"
     )
+
+
+def test_a_plugin_error_crosses_a_process_boundary_whole() -> None:
+    """A seed run in a worker process raises there; the driver prints the same line (the exception is pickled)."""
+    err = PluginError("simulator", "raise-sim", "rollout", "ValueError", "bad mesh", seed=1, builtin=False)
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is PluginError and back.message == err.message == (
+        "simulator 'raise-sim' raised ValueError during rollout (stage: rollout, seed 1): bad mesh"
+    )
+    assert (back.kind, back.name, back.stage, back.seed, back.builtin) == ("simulator", "raise-sim", "rollout", 1, False)
+    full = pickle.loads(pickle.dumps(OSError(errno.ENOSPC, "No space left on device", "/data/traj_0001.npz")))
+    assert (full.errno, full.filename) == (errno.ENOSPC, "/data/traj_0001.npz")

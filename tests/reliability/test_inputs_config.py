@@ -35,6 +35,7 @@ BAD = [
     ("data.seed=-3", "data.seed: must be an integer >= 0, got -3"),
     ("data.image_size=0", "data.image_size: must be an integer >= 1, got 0"),
     ("renderer_config.smgs.iterations=-1", "renderer_config.smgs.iterations: must be an integer >= 0, got -1"),
+    ("task_config.stability.horizon_factor=.inf", "task_config.stability.horizon_factor: must be a finite number, got inf"),
 ]  # fmt: skip
 
 

@@ -1,6 +1,6 @@
 """The parts of a run config that are not a plugin's options, checked before any work (`resolve_plugins` calls
-`check_run`): the seeds, the plugin names that hold options, and every dataset the run reads (its values and the
-memory its largest arrays need)."""
+`check_run`): the seeds, the plugin names that hold options, the task options' numbers (finite; their ranges are
+the task's to check), and every dataset the run reads (its values and the memory its largest arrays need)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.benchmark.core.registry import Registry
 from clods_bench.datasets.data_checks import MAX_SEED, check_data, check_memory
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import check_finite_fields
 
 OPTION_SECTIONS = (("sim_config", "simulator"), ("renderer_config", "renderer"), ("video_config", "video_predictor"))
 """The RunConfig sections of options per plugin name, with the registry kind that names their keys."""
@@ -20,6 +21,7 @@ def check_run(cfg: RunConfig, registry: Registry, datasets: Sequence[tuple[Any, 
     then each of `datasets` ((DataConfig, where) pairs: the run's own data and the task's extra datasets)."""
     check_seeds(cfg.seeds)
     check_option_sections(cfg, registry)
+    check_finite_fields(cfg.task_config, "task_config")  # the tasks check their ranges when they start; NaN never works
     for data, where in datasets:
         check_data(data, where)
     for data, where in datasets:  # memory last: a wrong value is named before a size is blamed
