@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -46,9 +48,35 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with open(tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp_path, target)
+    except Exception as exc:
+        full = _disk_full(exc, target)
+        if full is None or full is exc:
+            raise
+        raise full from exc
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+FULL_BELOW = 1 << 20
+"""A write that failed while its file system had fewer free bytes than this failed for lack of space."""
+
+
+def _disk_full(exc: Exception, target: Path) -> OSError | None:
+    """The error to raise for a write of `target` that failed for lack of space, naming `target`: `exc` itself when it
+    is an ENOSPC/EDQUOT OSError (with `target` as its filename where it had none); an OSError(ENOSPC) when another
+    exception (torch's zip writer says 'unexpected pos ...') was raised while the file system is full; else None."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        if not exc.filename:
+            exc.filename = str(target)
+        return exc
+    try:
+        free = shutil.disk_usage(target.parent).free
+    except OSError:
+        return None
+    if free < FULL_BELOW:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))  # raised from `exc`, which --debug shows
+    return None
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> None:

@@ -8,6 +8,7 @@ a float is expected becomes a float, so a config loaded twice has the same ident
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, Literal
@@ -99,3 +100,71 @@ def _type_error(dotted: str, value: Any, expected: str, where: str) -> ClodsErro
 
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+# ---------------------------------------------------------------- value checks shared by every config
+
+MAX_STEPS = 100_000_000
+"""The largest step count a config may ask for: optimiser steps, fitting iterations, frames per trajectory (10^8, 10x
+MeshGraphNets' 10M training steps). A larger count is a typo, or a run that would not end in years; it is rejected
+before any work starts."""
+
+
+def check_count(value: Any, where: str, minimum: int = 1, maximum: int = MAX_STEPS) -> None:
+    """Raise ClodsError naming `where` unless `value` is an integer in [minimum, maximum]."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ClodsError(f"must be an integer >= {minimum}, got {value!r}", where=where)
+    if value > maximum:
+        limit = " (10^8, the largest step count clods-bench accepts)" if maximum == MAX_STEPS else ""
+        raise ClodsError(f"must be <= {maximum}{limit}, got {value}", where=where)
+
+
+def check_number(value: Any, where: str, minimum: float | None = None, inclusive: bool = True, maximum: float | None = None) -> None:
+    """Raise ClodsError naming `where` unless `value` is a finite number >= `minimum` (> with `inclusive` off) and
+    <= `maximum` (each bound optional)."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and minimum is not None:
+        ok = value >= minimum if inclusive else value > minimum
+    if ok and maximum is not None:
+        ok = value <= maximum
+    if not ok:
+        bounds = [f"{'>=' if inclusive else '>'} {minimum:g}"] if minimum is not None else []
+        bounds += [f"<= {maximum:g}"] if maximum is not None else []
+        raise ClodsError(f"must be a finite number{' ' + ' and '.join(bounds) if bounds else ''}, got {value!r}", where=where)
+
+
+def check_finite_fields(obj: Any, where: str) -> None:
+    """Raise ClodsError naming the first field of `obj` (a dataclass or a mapping; nested dataclasses, lists and
+    mappings included) that holds a float NaN or infinity: no option of a run is meaningful at NaN, and "no limit"
+    is spelt null."""
+    for dotted, value in _numbers(obj, where):
+        if not math.isfinite(value):
+            raise ClodsError(f"must be a finite number, got {value!r}", where=dotted)
+
+
+def check_config(obj: Any, where: str) -> None:
+    """A plugin's loaded config checked before any work: its own `validate(where)` (or `validate()`), when it has
+    one, then every number finite (`check_finite_fields`)."""
+    validate = getattr(obj, "validate", None)
+    if callable(validate):
+        import inspect
+
+        try:
+            takes_where = "where" in inspect.signature(validate).parameters
+        except (TypeError, ValueError):  # a builtin or C-level callable: call it plainly
+            takes_where = False
+        validate(where=where) if takes_where else validate()
+    check_finite_fields(obj, where)
+
+
+def _numbers(value: Any, dotted: str) -> list[tuple[str, float]]:
+    """(dotted path, float) of every float inside `value`: dataclass fields, list items, mapping values."""
+    if isinstance(value, float):
+        return [(dotted, value)]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return [n for f in dataclasses.fields(value) for n in _numbers(getattr(value, f.name), f"{dotted}.{f.name}")]
+    if isinstance(value, (list, tuple)):
+        return [n for i, v in enumerate(value) for n in _numbers(v, f"{dotted}[{i}]")]
+    if isinstance(value, dict):
+        return [n for k, v in value.items() for n in _numbers(v, f"{dotted}.{k}")]
+    return []

@@ -8,9 +8,8 @@ import contextlib
 import sys
 from typing import Any, Iterator, Sequence
 
-from clods_bench.cli import bench, data, info, outputs, reproduce, run
+from clods_bench.cli import bench, data, failures, info, outputs, reproduce, run
 from clods_bench.cli.common import err_console
-from clods_bench.errors import ClodsError
 
 GROUPS = (info, data, run, outputs, reproduce, bench)
 """The command groups, in the order their commands are listed."""
@@ -75,8 +74,9 @@ def _switch_for_workers(off: bool) -> Iterator[None]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run `clods-bench` with `argv` (default: the command line); return its exit status: 0, 1 (a check found a
-    difference, or an internal error), 2 (a ClodsError, in one line), 130 (interrupted)."""
+    """Run `clods-bench` with `argv` (default: the command line); return its exit status (`cli.failures`): 0, 1 (a
+    check found a difference, or an internal error), 2 (a problem of the input, a plugin or the machine, in one
+    line), 130 (interrupted: Ctrl-C, or SIGTERM in a computing command)."""
     from clods_bench import numerics
 
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -90,21 +90,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         from clods_bench.benchmark.core.plugin_report import plugin_options
 
         with _switch_for_workers(args.no_deterministic), contextlib.ExitStack() as stack:
+            stack.enter_context(failures.term_as_interrupt(args.command in SCOPED_COMMANDS))
             scope = _exact_scope(args)
             if scope is not None:
                 stack.enter_context(scope)
             stack.enter_context(plugin_options(args.strict_plugins, err_console))
             return int(args.func(args) or 0)
-    except ClodsError as exc:
+    except KeyboardInterrupt as exc:
+        return failures.report(exc, args, err_console, argv)
+    except Exception as exc:  # one line; the traceback with --debug (or, for a bug, in the file the line names)
         if args.debug:
             raise
-        err_console.print(f"[bold red]error:[/bold red] {exc.message}", highlight=False)
-        return 2
-    except KeyboardInterrupt:
-        err_console.print("interrupted; finished work is kept and the next run resumes")
-        return 130
-    except Exception as exc:  # an internal error: short message unless --debug
-        if args.debug:
-            raise
-        err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} (rerun with --debug for the traceback)", highlight=False)
-        return 1
+        return failures.report(exc, args, err_console, argv)

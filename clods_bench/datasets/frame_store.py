@@ -129,6 +129,8 @@ class FrameWriter:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if isinstance(exc, OSError) and not exc.filename:
+            exc.filename = str(self.path)  # a chunk write that failed (a full disk) names the frame array it was for
         if exc_type is not None or self.tmp.exists():
             self.abort()
 

@@ -24,6 +24,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from clods_bench.atomic import file_lock
 from clods_bench.datasets.cameras import Camera, camera_rig
 from clods_bench.datasets.cloths import canonical
+from clods_bench.datasets.data_checks import check_data, check_memory, check_resolution
 from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.obstacle_nodes import face_colors, render_uv
 from clods_bench.datasets.rasterizer import DirectionalLight, RasterSettings, render_views
@@ -35,7 +36,6 @@ from clods_bench.errors import ClodsError
 from clods_bench.typed_config import dataclass_from_dict
 
 TEXTURE_FILE = "texture.png"
-FRAME_MODES = ("stored", "on_demand")
 LIGHT = DirectionalLight(direction=(-0.3, 0.8, -0.5), ambient=0.3, diffuse=0.7)  # lights the hanging flag (normal ~ y) well
 
 
@@ -47,13 +47,8 @@ def scene_raster_settings(d: DataConfig, scene: SceneSpec) -> RasterSettings:
 
 def resolution_of(d: DataConfig) -> tuple[int, int] | str:
     """The mesh resolution from the config: (nx, ny) or 'flagsimple'."""
-    if isinstance(d.resolution, str):
-        if d.resolution != "flagsimple":
-            raise ClodsError(f"resolution must be [nx, ny] or 'flagsimple', got '{d.resolution}'", where="data.resolution")
-        return d.resolution
-    if len(d.resolution) != 2 or min(d.resolution) < 2:
-        raise ClodsError(f"resolution must be two integers >= 2, got {d.resolution}", where="data.resolution")
-    return int(d.resolution[0]), int(d.resolution[1])
+    check_resolution(d.resolution, "data.resolution")
+    return d.resolution if isinstance(d.resolution, str) else (int(d.resolution[0]), int(d.resolution[1]))
 
 
 def make_cameras(d: DataConfig, mesh: ClothMesh) -> list[Camera]:
@@ -187,19 +182,8 @@ def generate(d: DataConfig, scene: SceneSpec, progress: bool = True, force: bool
     if d.path:
         raise ClodsError("data.path names an existing dataset: there is nothing to generate", where=f"data.path={d.path}",
                          hint="leave data.path unset to generate the dataset the other data.* fields describe")  # fmt: skip
-    if d.frames not in FRAME_MODES:
-        raise ClodsError(f"unknown frames mode {d.frames!r}, expected one of {FRAME_MODES}", where="data.frames")
-    if d.frames == "on_demand" and not d.render_frames:
-        raise ClodsError("frames=on_demand renders frames when read, but render_frames is off", where="data.frames",
-                         hint="leave data.render_frames on, or data.frames=stored")  # fmt: skip
-    for name in ("num_train", "num_test"):
-        if getattr(d, name) < (2 if name == "num_train" else 1):
-            raise ClodsError(f"{name} is {getattr(d, name)}, too small", where=f"data.{name}")
-    if not 2 <= d.interp_steps < d.num_steps - 1:
-        raise ClodsError(
-            f"interp_steps={d.interp_steps} must satisfy 2 <= interp_steps < num_steps - 1 = {d.num_steps - 1}",
-            where="data.interp_steps",
-        )
+    check_data(d)  # before anything is simulated or any folder created
+    check_memory(d, scene)
     d = dataclasses.replace(d, root=str(Path(d.root).resolve()))  # workers may start in another directory
     root = d.dataset_dir()
     with file_lock(root.parent / f".{root.name}.lock"):  # another generation of the same dataset: wait for it

@@ -26,6 +26,7 @@ from clods_bench.benchmark.clods.cache import Extracted, ExtractionCache
 from clods_bench.benchmark.clods.config import ClodsConfig
 from clods_bench.benchmark.clods.edge import edge_lengths, edge_loss, mesh_edges
 from clods_bench.benchmark.clods.prefetch import frames_ahead
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.thread_limits import torch_threads
@@ -91,7 +92,9 @@ def fit_frame(renderer: Any, cameras: Sequence[Any], target: Tensor, start: Tens
         for group in opt.param_groups:
             group["lr"] = cfg.learning_rate * cfg.lr_final_factor ** ((it - 1) / max(cfg.iterations - 1, 1))
         x = start + offset * prior.free
-        loss = (renderer.render(x, cameras) - target).abs().mean()
+        with plugin_call("renderer", str(getattr(renderer, "name", type(renderer).__name__)), "render", renderer):
+            image = renderer.render(x, cameras)
+        loss = (image - target).abs().mean()
         if cfg.gamma > 0:
             loss = loss + cfg.gamma * edge_loss(x, prior.edges, prior.rest_lengths)
         value = float(loss.detach())

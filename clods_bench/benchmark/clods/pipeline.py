@@ -202,12 +202,12 @@ def error_accumulation(sim: Simulator, meshes: Sequence[Trajectory], truth: Sequ
     """The paper's appendix figure on error accumulation, on the training videos: per frame, the RMSE of the extracted
     meshes against the truth (E-GT), of the simulator's rollout from the true first two frames against the truth
     (P-GT) and against the extracted meshes (P-E), each averaged over the trajectories."""
-    from clods_bench.benchmark.core.interfaces import RolloutInput, check_rollout
+    from clods_bench.benchmark.core.interfaces import RolloutInput, rollout_checked
 
     curves: dict[str, list[np.ndarray]] = {"E-GT": [], "P-GT": [], "P-E": []}
     for ext, gt in zip(meshes, truth):
         inp = RolloutInput.from_trajectory(gt, gt.num_steps)
-        pred = check_rollout(sim.rollout(inp), inp, "clods")
+        pred = rollout_checked(sim, inp, "clods")
         nodes = cloth_nodes(gt.node_type)
         curves["P-GT"].append(rmse_per_step(pred, gt.world_pos, nodes))
         if ext.world_pos.shape == gt.world_pos.shape:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, rollout_checked
 from clods_bench.datasets.types import NORMAL
 from clods_bench.errors import ClodsError
 
@@ -36,7 +36,7 @@ class OneStepPredictor:
         kinematic = np.repeat(last[None], 3, axis=0)
         kinematic[:, np.asarray(self.node_type) == NORMAL] = np.nan
         inp = RolloutInput(self.cells, self.mesh_pos, self.node_type, np.asarray(done[-2:], np.float32), kinematic, float(self.dt))
-        nxt = check_rollout(self.simulator.rollout(inp), inp, self.name)[2]
+        nxt = rollout_checked(self.simulator, inp, self.name)[2]
         if not np.isfinite(nxt).all():
             raise ClodsError(
                 "the pretrained simulator's one-step prediction is not finite", where="task_config.clods.start",

@@ -25,6 +25,7 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.cache_keys import digest
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.interfaces import Renderer
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.datasets.cameras import Camera
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
@@ -97,7 +98,7 @@ def fit_stage1_keyed(
         if getattr(renderer, "per_frame", False):
             raise ClodsError("stage 2 needs a mesh-driven renderer, this one is fitted per frame", where=f"renderer '{cfg.renderer}'", hint="use smgs or games")
         t0 = time.perf_counter()
-        with torch_threads(opts.num_threads):
+        with torch_threads(opts.num_threads), plugin_call("renderer", str(cfg.renderer), "fit", renderer):
             stats = renderer.fit(np.asarray(initial, np.float32), cells, mesh_pos, unit, list(cameras)) or {}
         seconds = time.perf_counter() - t0
         integrity.save_torch(renderer, path)

@@ -23,6 +23,7 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds, fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.core.interfaces import FitContext, Simulator
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.datasets.types import Trajectory
 from clods_bench.errors import ClodsError
 
@@ -103,7 +104,7 @@ def train_simulator(
     )  # fmt: skip
     work = fit_work_dir(ctx, identity)
     t0 = time.perf_counter()
-    with file_lock(work / "fit.lock"):
+    with file_lock(work / "fit.lock"), plugin_call("simulator", str(cfg.sim), "fit", sim):
         fit_stats = sim.fit(list(meshes), FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {}
     stage_digests.record("fit", sim)
     wall = time.perf_counter() - t0

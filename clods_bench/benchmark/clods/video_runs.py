@@ -19,6 +19,7 @@ from clods_bench.benchmark.core.builders import build_renderer, build_simulator,
 from clods_bench.benchmark.core.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds, fit_work_dir, predictor_fit_identity
 from clods_bench.benchmark.core.interfaces import FitContext, RolloutInput, VideoPredictor
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, image_scores
 from clods_bench.datasets.store import DatasetStore
@@ -37,7 +38,8 @@ def build_predictor(ctx: TaskContext) -> VideoPredictor:
     spec = ctx.registry.get("video_predictor", cfg.predictor)
     pcfg = spec.make_config(cfg.video_config.get(cfg.predictor, {}), where=f"video_config.{cfg.predictor}")
     scene = ctx.registry.get("scene", cfg.data.scene)
-    pred = spec.build(pcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
+    with plugin_call("video predictor", str(cfg.predictor), "build", spec.build):
+        pred = spec.build(pcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
     if not isinstance(pred, VideoPredictor):
         raise ClodsError("plugin did not return a VideoPredictor (needs fit() and predict())", where=f"video predictor '{cfg.predictor}'")
     return pred
@@ -57,7 +59,8 @@ def fit_predictor(
     work = fit_work_dir(ctx, predictor_fit_identity(ctx, train_ids, views, frames)) if learned else ctx.work_dir
     t0 = time.perf_counter()
     with file_lock(Path(work) / "fit.lock"):  # a parallel job training the same fit: wait, then load its checkpoint
-        stats = dict(pred.fit(videos, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {})
+        with plugin_call("video predictor", str(cfg.predictor), "fit", pred):
+            stats = dict(pred.fit(videos, FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress)) or {})
     stage_digests.record("fit", pred)
     wall = time.perf_counter() - t0
     return stats, {"fit_seconds": fit_cost_seconds(wall, stats), "fit_wall_seconds": wall}
@@ -209,7 +212,8 @@ def fit_renderer(ctx: TaskContext, trajs: list[Any], images: np.ndarray, train_c
         return (out[0], dict(out[1] or {})) if isinstance(out, tuple) else (out, {})
     renderer = build_renderer(ctx)
     verts = np.stack([t.world_pos[0] for t in trajs]).astype(np.float32)
-    stats = renderer.fit(verts, trajs[0].cells, trajs[0].mesh_pos, images, train_cams)
+    with plugin_call("renderer", str(ctx.config.renderer), "fit", renderer):
+        stats = renderer.fit(verts, trajs[0].cells, trajs[0].mesh_pos, images, train_cams)
     stage_digests.record("renderer fit", renderer)
     return renderer, dict(stats or {})
 

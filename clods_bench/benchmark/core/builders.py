@@ -16,6 +16,7 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.descriptors import BuildContext, TaskContext
 from clods_bench.benchmark.core.fit_cache import fit_work_dir, sim_fit_identity
 from clods_bench.benchmark.core.interfaces import FitContext, Renderer, Simulator
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.datasets.data_config import DataConfig
 from clods_bench.datasets.splits import SplitSpec
 from clods_bench.datasets.store import DatasetStore
@@ -46,7 +47,8 @@ def build_simulator(ctx: TaskContext, scene_name: str | None = None) -> Simulato
     spec = ctx.registry.get("simulator", cfg.sim)
     sim_cfg = spec.make_config(cfg.sim_config.get(cfg.sim, {}), where=f"sim_config.{cfg.sim}")
     scene = ctx.registry.get("scene", scene_name or cfg.data.scene)
-    sim = spec.build(sim_cfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
+    with plugin_call("simulator", str(cfg.sim), "build", spec.build):
+        sim = spec.build(sim_cfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
     if not isinstance(sim, Simulator):
         raise ClodsError("plugin did not return a Simulator (needs fit() and rollout())", where=f"simulator '{cfg.sim}'")
     return sim
@@ -69,7 +71,8 @@ def fit_on_meshes(
     t0 = time.perf_counter()
     with file_lock(work / "fit.lock"):  # a parallel job training the same fit: wait, then resume its finished checkpoint
         fit_ctx = FitContext(work_dir=work, seed=ctx.seed, progress=cfg.progress, snapshot_every=int(snapshot_every))
-        stats = sim.fit(train, fit_ctx) or {}
+        with plugin_call("simulator", str(cfg.sim), "fit", sim):
+            stats = sim.fit(train, fit_ctx) or {}
     stage_digests.record("fit", sim)
     return list(train_ids), dict(stats), time.perf_counter() - t0, work
 
@@ -80,7 +83,8 @@ def build_renderer(ctx: TaskContext) -> Renderer:
     spec = ctx.registry.get("renderer", cfg.renderer)
     rcfg = spec.make_config(cfg.renderer_config.get(cfg.renderer, {}), where=f"renderer_config.{cfg.renderer}")
     scene = ctx.registry.get("scene", cfg.data.scene)
-    renderer = spec.build(rcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
+    with plugin_call("renderer", str(cfg.renderer), "build", spec.build):
+        renderer = spec.build(rcfg, BuildContext(scene=scene, seed=ctx.seed, work_dir=ctx.work_dir, progress=cfg.progress))
     if not isinstance(renderer, Renderer):
         raise ClodsError("plugin did not return a Renderer (needs fit() and render())", where=f"renderer '{cfg.renderer}'")
     return renderer

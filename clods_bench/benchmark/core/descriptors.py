@@ -46,10 +46,14 @@ class PluginSpec:
     alone stays on the CPU (the run names it), and its `device` option set to another kind is an error."""
 
     def make_config(self, values: Mapping[str, Any], where: str) -> Any:
-        """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys."""
-        from clods_bench.typed_config import dataclass_from_dict
+        """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys, and check its values:
+        the class's own `validate(where)` (or `validate()`) when it has one, then every number finite. A run resolves
+        its plugins' configs before any data is generated, so a bad value stops it before any work."""
+        from clods_bench.typed_config import check_config, dataclass_from_dict
 
-        return dataclass_from_dict(self.config_cls, dict(values), where)
+        config = dataclass_from_dict(self.config_cls, dict(values), where)
+        check_config(config, where)
+        return config
 
 
 @dataclass(frozen=True)

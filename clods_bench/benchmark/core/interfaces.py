@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from clods_bench.benchmark.core import stage_digests
-from clods_bench.datasets.types import NORMAL, Trajectory
+from clods_bench.benchmark.core.plugin_calls import plugin_call
+from clods_bench.datasets.types import HANDLE, NORMAL, OBSTACLE, Trajectory
 from clods_bench.errors import ClodsError
 
 if TYPE_CHECKING:
@@ -113,15 +114,87 @@ class Renderer(Protocol):
     def render(self, verts: Any, cameras: Sequence["Camera"]) -> Any: ...
 
 
+class RolloutContractError(ClodsError):
+    """A plugin's output broke the interface's contract (non-numeric output, a wrong shape; for a rollout, given
+    frames or kinematic nodes changed): a plugin bug, never a divergence."""
+
+
+NODE_TYPE_NAMES = {NORMAL: "NORMAL", OBSTACLE: "OBSTACLE", HANDLE: "HANDLE"}
+CONTRACT_ULPS = 4
+"""Tolerance of the given positions a rollout must return: this many float32 ulps of the largest given coordinate
+(both sides cast to float32 first). Returning the float32 input through float64 arithmetic is exact; the ulps
+leave room for a simulator that re-derives them in another precision, and nothing more."""
+
+
 def check_rollout(out: Any, inp: RolloutInput, sim_name: str) -> np.ndarray:
-    """Check a simulator's rollout output shape; return it as float32 (NaN allowed: divergence is data)."""
-    arr = np.asarray(out)
+    """Check a simulator's rollout against the contract; return it as float32 (NaN allowed at NORMAL nodes:
+    divergence is data).
+
+    The output must be numeric, of shape (T,V,3), and return unchanged (within `CONTRACT_ULPS`) the two given frames
+    and every finite position of a kinematic node (NaN/Inf from frame 2 on is a divergence, at any node); a violation
+    is one `RolloutContractError` naming the plugin, the first node and frame that differ."""
+    where = f"simulator '{sim_name}'"
+    arr = numeric_array(out, "rollout", "a (T,V,3) float32 array of positions", where)
     expected = (inp.num_frames, inp.node_type.shape[0], 3)
     if arr.shape != expected:
-        raise ClodsError(f"rollout returned shape {arr.shape}, expected {expected}", where=f"simulator '{sim_name}'")
+        raise RolloutContractError(f"rollout returned shape {arr.shape}, expected {expected}", where=where)
     out = arr.astype(np.float32, copy=False)
+    _check_given_positions(out, inp, where)
     stage_digests.record("rollout", out)
     return out
+
+
+def numeric_array(out: Any, call: str, expected: str, where: str) -> np.ndarray:
+    """`out` as a numpy array of integers or floats; anything else (None, objects, strings, booleans) is a
+    `RolloutContractError` saying what `call` returned instead of `expected`, before numpy can warn or cast."""
+    arr = None
+    if isinstance(out, np.ndarray):
+        arr = out
+    elif isinstance(out, (list, tuple)) or hasattr(out, "__array__"):
+        try:
+            arr = np.asarray(out)
+        except (ValueError, TypeError):
+            arr = None
+    if arr is None or arr.dtype.kind not in "iuf":
+        what = type(out).__name__ if arr is None else f"an array of dtype {arr.dtype}"
+        raise RolloutContractError(f"{call} returned {what}, expected {expected}", where=where)
+    return arr
+
+
+def _check_given_positions(out: np.ndarray, inp: RolloutInput, where: str) -> None:
+    """Raise RolloutContractError at the first frame 0/1 node, or finite kinematic node of a later frame, that differs
+    from the given position by more than `CONTRACT_ULPS` ulps of the largest given coordinate."""
+    given = np.asarray(inp.init_pos, np.float32)
+    kinematic = inp.kinematic_mask
+    kin_given = np.asarray(inp.kinematic_pos, np.float32)[:, kinematic]
+    finite = [a[np.isfinite(a)] for a in (given, kin_given)]
+    scale = max([float(np.abs(a).max()) for a in finite if a.size] + [1.0])
+    tol = CONTRACT_ULPS * float(np.spacing(np.float32(scale)))
+    checks = ((True, out[:2], given, np.arange(given.shape[1]), 0), (False, out[2:, kinematic], kin_given[2:], np.flatnonzero(kinematic), 2))
+    for frames_given, got, want, nodes, first in checks:
+        with np.errstate(invalid="ignore"):
+            bad = ~((np.abs(got - want) <= tol) | (np.isnan(want) & np.isnan(got)))
+        if not frames_given:
+            bad &= np.isfinite(got)  # NaN/Inf after frame 1 is a divergence (data), at any node
+        if not bad.any():
+            continue
+        t, j = (int(i) for i in np.argwhere(bad.any(axis=2))[0])
+        code = int(inp.node_type[nodes[j]])
+        node = f"node {int(nodes[j])} ({NODE_TYPE_NAMES.get(code, f'node type {code}')})"
+        values = f"{_xyz(got[t, j])}, given {_xyz(want[t, j])} (tolerance {tol:.3g} m)"
+        what = f"changed given frame {first + t}: {node} is {values}" if frames_given else f"moved kinematic {node} at frame {first + t}: {values}"
+        raise RolloutContractError(f"rollout {what}", where=where, hint="return frames 0 and 1 and every non-NORMAL node's kinematic_pos unchanged")
+
+
+def _xyz(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{float(v):.7g}" for v in p) + ")"
+
+
+def rollout_checked(sim: Simulator, inp: RolloutInput, sim_name: str) -> np.ndarray:
+    """`sim.rollout(inp)` as a named plugin call (`plugin_call`), its output checked by `check_rollout`."""
+    with plugin_call("simulator", sim_name, "rollout", sim):
+        out = sim.rollout(inp)
+    return check_rollout(out, inp, sim_name)
 
 
 @runtime_checkable
@@ -157,7 +230,7 @@ def check_video(arr: Any, where: str, ndim: int = 4) -> np.ndarray:
 def check_prediction(out: Any, context: np.ndarray, num_frames: int, predictor: str) -> np.ndarray:
     """Check a predictor's output against its (N,C,H,W,3) context: shape (N,num_frames,H,W,3), finite; clipped to [0,1]."""
     n, _, h, w, _ = context.shape
-    arr = np.asarray(out)
+    arr = numeric_array(out, "predict", "an (N,T,H,W,3) float32 array of frames", f"video predictor '{predictor}'")
     expected = (n, num_frames, h, w, 3)
     if arr.shape != expected:
         raise ClodsError(f"predict returned shape {arr.shape}, expected {expected}", where=f"video predictor '{predictor}'")

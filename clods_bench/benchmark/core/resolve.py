@@ -14,6 +14,7 @@ from typing import Any
 
 from clods_bench.benchmark.core.config import RunConfig
 from clods_bench.benchmark.core.registry import Registry
+from clods_bench.benchmark.core.run_checks import check_run
 from clods_bench.errors import ClodsError
 
 
@@ -41,9 +42,10 @@ PLUGIN_KINDS: tuple[PluginKind, ...] = (
 
 
 def resolve_plugins(cfg: RunConfig, registry: Registry) -> RunConfig:
-    """`cfg` checked (task, scene, the task's extra datasets, the plugins it needs and names), its `device` written
-    into the options that can take it (`device_switch`), and with the complete options of every plugin it names (its
-    config dataclass, defaults filled in); fails before any work.
+    """`cfg` checked (task, scene, seeds, every dataset it reads and the memory their largest arrays need, the plugins
+    it needs and names, their options' values: `run_checks`, `PluginSpec.make_config`), its `device` written into the
+    options that can take it (`device_switch`), and with the complete options of every plugin it names (its config
+    dataclass, defaults filled in); fails before any work.
 
     What a run saves (config.yaml) and what names its record directory then includes the plugins' defaults: a changed
     default gives a new record instead of silently reusing one made with the old value. Idempotent; plugins the run
@@ -52,7 +54,8 @@ def resolve_plugins(cfg: RunConfig, registry: Registry) -> RunConfig:
     """
     task = registry.get("task", cfg.task)
     registry.get("scene", cfg.data.scene)
-    task_datasets(cfg, registry)  # e.g. CDG's eval_data: its fields and scene
+    extra = task_datasets(cfg, registry)  # e.g. CDG's eval_data: its fields and scene
+    check_run(cfg, registry, [(cfg.data, "data"), *((d, f"task_config.{cfg.task} (its dataset of scene {d.scene}): data") for d in extra)])
     from clods_bench.benchmark.core.device_switch import apply_device  # (it reads PLUGIN_KINDS from here)
 
     cfg = apply_device(cfg, registry)  # the run's device into the options of its plugins and stages

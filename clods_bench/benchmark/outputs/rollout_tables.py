@@ -56,7 +56,7 @@ def cdg_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
         strain = rec["metrics"].get("max_strain") or {}
         s_mean = float("nan") if strain.get("mean") is None else strain["mean"]
         s_std = float("nan") if strain.get("std") is None else strain["std"]
-        row[("Stability", "", "max edge strain")] = fmt_cell(s_mean, s_std, digits=3) if math.isfinite(s_mean) else "n/a"
+        row[("Stability", "", "max edge strain")] = fmt_cell(s_mean, s_std, digits=3, diverged=div)  # a diverged rollout's strain is inf
         num["max_strain/mean"], num["max_strain/std"] = s_mean, s_std
         t = rec["timings"]
         infer = t.get("infer_ms_per_step", {}).get("mean", float("nan"))
@@ -125,7 +125,7 @@ def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.Dat
                 "Scene": rec["scene"],
                 "Frames": "n/a" if horizon is None else str(horizon),
                 "RMSE": fmt_cell(*rmse) if math.isfinite(rmse[0]) else "n/a (diverged)",
-                "Max edge strain": fmt_cell(*strain, digits=3) if math.isfinite(strain[0]) else "n/a",
+                "Max edge strain": fmt_cell(*strain, digits=3) if math.isfinite(strain[0]) else "n/a (diverged)" if math.isfinite(first) else "n/a",
                 "GT max strain": f"{get('gt_max_strain')[0]:.3g}",
                 "Divergence": cell,
                 "infer ms/step": f"{get('infer_ms_per_step', t)[0]:.3g}",

@@ -164,6 +164,7 @@ def build_configs(
     if first_seeds is not None and first_seeds < 1:
         raise ClodsError(f"first_seeds must be >= 1, got {first_seeds}", where="--first-seeds")
     problems: list[str] = []
+    value_problems: dict[str, list[str]] = {}  # a config problem -> the rows that have it (an override shared by many rows: one line)
     tables = {t.id: t for t in plan.tables}
     labels: dict[str, set[tuple[str, str]]] = {}  # (label, scene) per table
     out: list[tuple[PlanRun, RunConfig]] = []
@@ -191,7 +192,7 @@ def build_configs(
             cfg = load_config(preset, config_file, [*plan.overrides, *table.overrides, *run_overrides(run), *extra_overrides], **fields)
             cfg = resolve_plugins(cfg, registry)  # rows that differ only in a plugin default are one run
         except ClodsError as exc:
-            problems.append(f"{where}: {exc.message}")
+            value_problems.setdefault(exc.message, []).append(run_name(run))
             continue
         if first_seeds is not None:
             cfg.seeds = list(cfg.seeds[:first_seeds])
@@ -207,9 +208,22 @@ def build_configs(
     empty = [t.id for t in plan.tables if not any(r.table == t.id for r in plan.runs)]
     if empty:
         problems.append(f"tables without runs: {', '.join(empty)}")
-    if problems:
-        raise ClodsError("the reproduce plan cannot run:\n  " + "\n  ".join(problems), hint="enable only runs whose task and plugins are installed (`clods-bench list`)")
+    lines = [f"{message} ({_rows_text(rows)})" for message, rows in value_problems.items()]
+    if len(lines) == 1 and not problems:
+        raise ClodsError(lines[0])
+    if problems or lines:
+        raise ClodsError("the reproduce plan cannot run:\n  " + "\n  ".join([*lines, *problems]),
+                         hint="enable only runs whose task and plugins are installed (`clods-bench list`)")  # fmt: skip
     return out
+
+
+def _rows_text(rows: Sequence[str], shown: int = 3) -> str:
+    """'row a' / 'rows a, b and c' / 'rows a, b, c and 4 more': the plan rows a problem was found in."""
+    if len(rows) == 1:
+        return f"row {rows[0]}"
+    if len(rows) <= shown:
+        return f"rows {', '.join(rows[:-1])} and {rows[-1]}"
+    return f"{len(rows)} rows: {', '.join(rows[:shown])} and {len(rows) - shown} more"
 
 
 # ---------------------------------------------------------------- tables

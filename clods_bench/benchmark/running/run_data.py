@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from clods_bench.benchmark.core.config import RunConfig
+from clods_bench.benchmark.core.plugin_calls import stage
 from clods_bench.benchmark.core.registry import Registry
 from clods_bench.datasets.generate import generate, open_existing, scene_fingerprint
 from clods_bench.datasets.store import DatasetStore
@@ -17,7 +18,8 @@ def ensure_dataset(cfg: RunConfig, registry: Registry, progress: bool = True, ex
     if cfg.data.path:
         return open_existing(cfg.data.path, cfg.data.num_train + cfg.data.num_test)
     scene = registry.get("scene", cfg.data.scene)
-    return generate(cfg.data, scene, progress=progress, executor=executor)
+    with stage(f"generating dataset {cfg.data.dataset_dir()}"):
+        return generate(cfg.data, scene, progress=progress, executor=executor)
 
 
 def ensure_complete_dataset(cfg: RunConfig, registry: Registry, progress: bool = True, executor: Any = None) -> Any:

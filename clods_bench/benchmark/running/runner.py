@@ -14,6 +14,7 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.config import RunConfig, save_config
 from clods_bench.benchmark.core.descriptors import TaskContext
 from clods_bench.benchmark.core.determinism import seed_everything
+from clods_bench.benchmark.core.plugin_calls import stage
 from clods_bench.benchmark.core.registry import Registry
 from clods_bench.benchmark.core.resolve import resolve_plugins, task_datasets
 from clods_bench.benchmark.running.records import (
@@ -77,7 +78,7 @@ def _run_task(cfg: RunConfig, registry: Registry, console: Console, ensure_data:
         work.mkdir(parents=True, exist_ok=True)
         seed_everything(seed)
         t0, c0 = time.perf_counter(), time.process_time()
-        with stage_digests.collecting() as digests:
+        with stage_digests.collecting() as digests, stage(f"task {cfg.task}", seed=seed):  # names the seed in a failure
             for digest in data_digests:
                 stage_digests.record("data", digest)
             result = task.run(TaskContext(config=cfg, seed=seed, work_dir=work, registry=registry))

@@ -30,6 +30,23 @@ def divergence_step(pred: np.ndarray) -> int | None:
     return int(np.argmax(bad)) if bad.any() else None
 
 
+def diverged_max(values: np.ndarray | Sequence[float]) -> float:
+    """The largest of `values` (per-frame edge strains of a rollout), inf when any is NaN/Inf: a rollout that diverged
+    has no largest strain, and the one of its finite frames would pass a blown-up rollout for a calm one. NaN for
+    no values."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.size == 0:
+        return float("nan")
+    return float(v.max()) if np.isfinite(v).all() else float("inf")
+
+
+def recorded_max(value: float) -> float:
+    """A largest strain as a run records it: a diverged one (inf, from `diverged_max`) becomes NaN, which JSON
+    stores (as null) and seeds average quietly, and which the tables print as diverged next to the record's
+    divergence step."""
+    return float(value) if np.isfinite(value) else float("nan")
+
+
 def phase_frames(interp_steps: int, num_steps: int) -> dict[str, np.ndarray]:
     """Frames scored in each phase: interpolation 2..interp_steps (frames 0, 1 are given), extrapolation after it."""
     return {"interp": np.arange(2, interp_steps + 1), "extrap": np.arange(interp_steps + 1, num_steps)}

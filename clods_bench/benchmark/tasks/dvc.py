@@ -41,7 +41,8 @@ from clods_bench.benchmark.clods.video_runs import (
 )
 from clods_bench.benchmark.core.builders import as_images, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.core.interfaces import RolloutInput, check_prediction, check_rollout
+from clods_bench.benchmark.core.interfaces import RolloutInput, check_prediction, check_rollout, rollout_checked
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.benchmark.outputs.films import save_film
 from clods_bench.benchmark.outputs.media import write_image_grid
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
@@ -185,7 +186,9 @@ def _run_predictor(
         for i, clip in clips.items():
             context = clip[:, :observed]
             t0 = time.perf_counter()
-            out = check_prediction(pred.predict(context, len(future), view_cams), context, len(future), cfg.predictor)
+            with plugin_call("video predictor", str(cfg.predictor), "predict", pred):
+                raw = pred.predict(context, len(future), view_cams)
+            out = check_prediction(raw, context, len(future), cfg.predictor)
             predict_seconds += time.perf_counter() - t0
             for k, t in enumerate(future):
                 scores.add(i, t, out[:, k], clip[:, t])
@@ -258,7 +261,7 @@ def _run_simulator(
             else:
                 inp, observed = _rollout_input(traj, opts, recovered, i, splits)
             t0 = time.perf_counter()
-            mesh = check_rollout(sim.rollout(inp), inp, cfg.sim)
+            mesh = rollout_checked(sim, inp, cfg.sim)
             rollout_s += time.perf_counter() - t0
             steps += inp.num_frames - 2
             if observed is not None:  # frames 0..interp: the recovered meshes; the rollout continues from the last two
@@ -270,7 +273,7 @@ def _run_simulator(
             frames = []
             for t in range(1, splits.num_steps):
                 t0 = time.perf_counter()
-                with torch.no_grad():
+                with torch.no_grad(), plugin_call("renderer", str(cfg.renderer), "render", renderers[i]):
                     out = renderers[i].render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)

@@ -46,7 +46,8 @@ from clods_bench.benchmark.clods.video_runs import (
 )
 from clods_bench.benchmark.core.builders import as_images, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
-from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout
+from clods_bench.benchmark.core.interfaces import RolloutInput, VideoPredictor, check_prediction, check_rollout, rollout_checked
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.benchmark.outputs.films import FILM_SUFFIX, save_film
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, load_lpips, lpips_for
 from clods_bench.benchmark.scoring.metrics import divergence_step
@@ -278,7 +279,9 @@ def _run_predictor(
             clip = train_clips[i] if s == "extrap" else _read(store, i, frames[-1] + 1, views)
             context = clip[:, :given]
             t0 = time.perf_counter()
-            out = check_prediction(pred.predict(context, len(frames), view_cams), context, len(frames), str(cfg.predictor))
+            with plugin_call("video predictor", str(cfg.predictor), "predict", pred):
+                raw = pred.predict(context, len(frames), view_cams)
+            out = check_prediction(raw, context, len(frames), str(cfg.predictor))
             predict_seconds += time.perf_counter() - t0
             for k, t in enumerate(frames):
                 scores[s].add(i, t, out[:, k], clip[:, t])
@@ -329,7 +332,7 @@ def _run_simulator(
             # Algorithm S2: from the initial mesh, as far as scored
             inp = own_rollout_input(traj, 0, frames[-1] + 1) if own else RolloutInput.from_trajectory(traj, frames[-1] + 1)
             t0 = time.perf_counter()
-            mesh = check_rollout(sim.rollout(inp), inp, str(cfg.sim))
+            mesh = rollout_checked(sim, inp, str(cfg.sim))
             rollout_s += time.perf_counter() - t0
             steps += inp.num_frames - 2
             bad = divergence_step(mesh)
@@ -339,7 +342,7 @@ def _run_simulator(
             out = []
             for t in frames:
                 t0 = time.perf_counter()
-                with torch.no_grad():
+                with torch.no_grad(), plugin_call("renderer", str(cfg.renderer), "render", renderers[i]):
                     img = renderers[i].render(torch.from_numpy(mesh[t]), view_cams)
                 render_s += time.perf_counter() - t0
                 rendered += len(view_cams)

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.benchmark.outputs.mesh_pictures import save_mesh_sample
 from clods_bench.errors import ClodsError
 from clods_bench.typed_config import dataclass_from_dict
@@ -128,7 +129,7 @@ def _scored_in_images(ctx: TaskContext, opts: ExtractConfig, store: Any, ids: li
             cams = [rig[v] for v in views]
             clip = store.frames(i).select(slice(0, mesh.num_steps), views)  # lazy: one frame at a time (paper videos are GBs)
             for t in frames:
-                with torch.no_grad():
+                with torch.no_grad(), plugin_call("renderer", str(ctx.config.renderer), "render", renderer):
                     out = renderer.render(torch.from_numpy(np.ascontiguousarray(mesh.world_pos[t])), cams)
                 img = as_images(out, (len(cams), h, w, 3), where=f"renderer '{ctx.config.renderer}', trajectory {i}, frame {t}")
                 scores[prefix].add(i, t, img, to_float(clip[t]))

@@ -38,6 +38,7 @@ from clods_bench.benchmark.core import stage_digests
 from clods_bench.benchmark.core.builders import as_images, build_renderer, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.outputs.films import film_cap, film_frame_picks, save_film, to_uint8
+from clods_bench.benchmark.core.plugin_calls import plugin_call
 from clods_bench.benchmark.outputs.media import write_image_grid
 from clods_bench.benchmark.scoring.image_metrics import LpipsMetric, LpipsUnavailable, image_scores, load_lpips, lpips_for
 from clods_bench.datasets.store import DatasetStore
@@ -215,13 +216,14 @@ def run_nvs(ctx: TaskContext) -> TaskResult:
                     per_frame = is_per_frame(renderer)
                     fit_verts = verts if per_frame else traj.world_pos[0].astype(np.float32)
                     t0 = time.perf_counter()
-                    stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
+                    with plugin_call("renderer", str(cfg.renderer), "fit", renderer):
+                        stats = renderer.fit(fit_verts[None], cells, mesh_pos, _to_float(video[t if per_frame else 0, train_idx])[None], train_cams)
                     stage_digests.record("renderer fit", renderer)
                     state["fit_seconds"] += time.perf_counter() - t0
                     state["fits"] += 1
                     state["fit_stats"].append({k: float(v) for k, v in (stats or {}).items()})
                 t0 = time.perf_counter()
-                with torch.no_grad():
+                with torch.no_grad(), plugin_call("renderer", str(cfg.renderer), "render", renderer):
                     out = renderer.render(torch.from_numpy(verts), test_cams)
                 state["render_seconds"] += time.perf_counter() - t0
                 pred = as_images(out, (len(test_cams), h, w, 3), where=f"renderer '{cfg.renderer}', trajectory {i}, frame {t}")

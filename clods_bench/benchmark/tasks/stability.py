@@ -27,9 +27,9 @@ from clods_bench import integrity
 from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.core.interfaces import RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.core.interfaces import RolloutContractError, RolloutInput, Simulator, check_rollout
 from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, save_rollout_sample
-from clods_bench.benchmark.scoring.metrics import rmse_per_step
+from clods_bench.benchmark.scoring.metrics import diverged_max, recorded_max, rmse_per_step
 from clods_bench.benchmark.scoring.monitors import MeshMonitor, cloth_monitor, first_failure
 from clods_bench.datasets.store import DatasetStore
 from clods_bench.datasets.types import Trajectory
@@ -140,16 +140,15 @@ def safe_rollout(sim: Simulator, inp: RolloutInput, name: str, locate: bool) -> 
     An exception in `sim.rollout` is caught; with `locate` the largest horizon that runs is
     found by bisection (hi frames fail, lo frames run: the failure is at frame hi - 1) and its
     frames are kept; without it the failure is put at frame 2, the first predicted one. A wrong
-    output shape is a plugin bug, not a divergence, and is raised.
+    output (non-numeric, a wrong shape, given positions changed: `RolloutContractError`) is a plugin bug, not a
+    divergence, and is raised.
     """
     full = inp.num_frames
     try:
         return check_rollout(sim.rollout(inp), inp, name), None, None
-    except ClodsError as exc:
-        if "rollout returned shape" in exc.what:
-            raise
-        message = f"{type(exc).__name__}: {exc}"
-    except Exception as exc:  # noqa: BLE001 - a diverging model may raise anything; record it and go on
+    except RolloutContractError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a diverging model may raise anything (memory too); record it and go on
         message = f"{type(exc).__name__}: {exc}"
     out = np.full((full, *inp.init_pos.shape[1:]), np.nan, np.float32)
     out[:2] = inp.init_pos
@@ -179,13 +178,12 @@ def watch(
     n = 0 if gt is None else min(len(gt), len(pred))
     curve = rmse_per_step(pred[:n], gt[:n], monitor.nodes) if n else np.zeros(0)
     scored = curve[2:]
-    finite = np.isfinite(strain)
     return {
         "rmse": float(np.mean(scored)) if scored.size and np.isfinite(scored).all() else float("nan"),
         "rmse_curve": curve,
         "strain_curve": strain,
         "energy_ratio_curve": energy / max(gt_energy_max, 1e-300),
-        "max_strain": float(np.max(strain[2:][finite[2:]])) if finite[2:].any() else float("nan"),
+        "max_strain": diverged_max(strain[2:]),
         "max_energy_ratio": float(np.nanmax(energy[2:]) / max(gt_energy_max, 1e-300)) if len(energy) > 2 else 0.0,
         "failure_frame": frame,
         "reason": reason,
@@ -322,7 +320,7 @@ def rollout_summary(results: list[dict[str, Any]], frames: int) -> dict[str, flo
     rmses = [r["rmse"] for r in results]
     return {
         "rmse": float(np.mean(rmses)) if rmses else float("nan"),
-        "max_strain": float(np.nanmax([r["max_strain"] for r in results])) if results else float("nan"),
+        "max_strain": recorded_max(np.nanmax([r["max_strain"] for r in results])) if results else float("nan"),  # NaN: one diverged
         "gt_max_strain": float(max(r["gt_max_strain"] for r in results)) if results else float("nan"),
         "max_energy_ratio": float(np.nanmax([r["max_energy_ratio"] for r in results])) if results else float("nan"),
         "diverged_fraction": len(failed) / max(len(results), 1),

@@ -26,6 +26,7 @@ from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.mesh_gaussians import anchor_gaussians, barycentric_layout
 from clods_bench.splatting import render_gaussians
 from clods_bench.splatting.sh import num_sh_bases
+from clods_bench.typed_config import check_count
 
 Backend = Literal["cpu", "reference", "gsplat"]
 
@@ -67,8 +68,7 @@ class GamesConfig:
         """Raise ClodsError naming the first field that is out of range."""
         if self.gaussians_per_face < 1:
             raise ClodsError(f"must be >= 1, got {self.gaussians_per_face}", where=f"{where}.gaussians_per_face")
-        if self.iterations < 0:
-            raise ClodsError(f"must be >= 0, got {self.iterations}", where=f"{where}.iterations")
+        check_count(self.iterations, f"{where}.iterations", minimum=0)
         if not 0 <= self.sh_degree <= 3:
             raise ClodsError(f"must be in 0..3, got {self.sh_degree}", where=f"{where}.sh_degree")
         if not 0.0 < self.init_opacity < 1.0:

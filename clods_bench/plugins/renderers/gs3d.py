@@ -34,6 +34,7 @@ from clods_bench.plugins.renderers.games import Backend, colors_of, init_colors,
 from clods_bench.plugins.renderers.losses import render_loss
 from clods_bench.plugins.renderers.mesh_gaussians import face_frames, mean_face_size
 from clods_bench.splatting import render_gaussians
+from clods_bench.typed_config import check_count
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,7 @@ class Gs3dConfig:
             raise ClodsError(f"must be >= 1, got {self.num_gaussians}", where=f"{where}.num_gaussians")
         if self.init not in ("visible", "surface", "random"):
             raise ClodsError(f"unknown init '{self.init}'; known: visible, surface, random", where=f"{where}.init")
-        if self.iterations < 0:
-            raise ClodsError(f"must be >= 0, got {self.iterations}", where=f"{where}.iterations")
+        check_count(self.iterations, f"{where}.iterations", minimum=0)
         if not 0 <= self.sh_degree <= 3:
             raise ClodsError(f"must be in 0..3, got {self.sh_degree}", where=f"{where}.sh_degree")
         if not 0.0 < self.init_opacity < 1.0:

@@ -31,6 +31,7 @@ from clods_bench.benchmark.core.interfaces import FitContext, check_video
 from clods_bench.devices import check_device_name, torch_device
 from clods_bench.errors import ClodsError
 from clods_bench.numerics.thread_limits import torch_threads
+from clods_bench.typed_config import check_count, check_number
 
 CHECKPOINT_FORMAT = 1
 
@@ -57,11 +58,12 @@ class WindowTrainConfig:
 
     def validate_training(self, name: str, extra_positive: Sequence[str] = ()) -> None:
         """Raise ClodsError naming the field of `video_config.<name>` when a training option cannot work."""
-        for field in ("context_frames", "train_steps", "batch_size", *extra_positive):
+        for field in ("context_frames", "batch_size", *extra_positive):
             if getattr(self, field) < 1:
                 raise ClodsError(f"must be >= 1, got {getattr(self, field)}", where=f"video_config.{name}.{field}")
-        if self.learning_rate <= 0:
-            raise ClodsError(f"must be > 0, got {self.learning_rate}", where=f"video_config.{name}.learning_rate")
+        check_count(self.train_steps, f"video_config.{name}.train_steps")
+        check_count(self.checkpoint_every, f"video_config.{name}.checkpoint_every", minimum=0)
+        check_number(self.learning_rate, f"video_config.{name}.learning_rate", minimum=0, inclusive=False)
         if self.checkpoint_every < 0 or self.num_threads < 0:
             raise ClodsError("checkpoint_every and num_threads must be >= 0", where=f"video_config.{name}")
         check_device_name(self.device, f"video_config.{name}.device")

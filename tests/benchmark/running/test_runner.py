@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import yaml
 
 from clods_bench.benchmark.core.config import load_config
@@ -12,6 +13,7 @@ from clods_bench.benchmark.core.resolve import resolve_plugins
 from clods_bench.benchmark.running.records import record_dir
 from clods_bench.benchmark.running.run_data import ensure_complete_dataset
 from clods_bench.benchmark.running.runner import run_task
+from clods_bench.errors import ClodsError
 from clods_bench.plugins.renderers.gs3d import Gs3dConfig
 from tests.conftest import tiny_config
 
@@ -49,7 +51,8 @@ def test_the_saved_config_holds_the_plugins_full_options(tmp_path: Path, tiny_ro
 
 
 def test_options_of_plugins_the_run_does_not_use_do_not_move_its_record() -> None:
-    """A preset gaining a new plugin's options (e.g. a third-party simulator's) keeps every other run's record."""
+    """A preset gaining options of another installed plugin (e.g. a third-party simulator's) keeps every other run's
+    record; options of a plugin that is not installed are an error naming them (a misspelt name is no silent no-op)."""
     reg = default_registry()
 
     def rdir(*sets: str, **fields: str) -> Path:
@@ -57,7 +60,10 @@ def test_options_of_plugins_the_run_does_not_use_do_not_move_its_record() -> Non
 
     cdg = {"task": "cdg", "sim": "mgn", "renderer": "smgs"}
     base = rdir(**cdg)
-    assert rdir("sim_config.mythirdpartysim.depth=3", "renderer_config.gs3d.iterations=7", **cdg) == base
+    assert rdir("sim_config.bsms.levels=2", "renderer_config.gs3d.iterations=7", **cdg) == base
+    with pytest.raises(ClodsError) as err:
+        rdir("sim_config.mythirdpartysim.depth=3", **cdg)
+    assert err.value.where == "sim_config.mythirdpartysim" and err.value.what.startswith("unknown simulator 'mythirdpartysim'; known: bsms,")
     assert rdir("sim_config.mgn.latent_size=32", **cdg) != base  # the used simulator's options do count
     assert rdir("renderer_config.smgs.gaussians_per_face=10", **cdg) != base  # and the used renderer's
     assert rdir("sim_config.mgn.latent_size=32", task="nvs", renderer="gs3d") == rdir(task="nvs", renderer="gs3d")

@@ -177,8 +177,9 @@ def test_frozen_simulator_rendered_on_both_splits(tiny_root: Path, tmp_path: Pat
     assert seed["extra"]["sim_training"] == "mesh" and seed["timings"]["render_ms_per_frame"] > 0
 
 
-class Interrupt(Exception):
-    """Raised by the patched checkpoint writer to stop a run after its first checkpoint."""
+class Interrupt(KeyboardInterrupt):
+    """Raised by the patched checkpoint writer to stop a run after its first checkpoint, as Ctrl-C or SIGTERM would (an
+    interruption, not a plugin's error: it passes the plugin-call wrapper unchanged)."""
 
 
 def test_resumed_run_ends_with_the_uninterrupted_weights(tiny_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -11,11 +11,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import sys
 from dataclasses import dataclass
 from typing import Literal
 
 from clods_bench.devices import check_device_name
 from clods_bench.errors import ClodsError
+from clods_bench.typed_config import check_count, check_number
 
 
 @dataclass(frozen=True)
@@ -64,22 +66,18 @@ class LearnedConfig:
     both start from the same model; the noise and batches come from the same CPU generator)."""
 
     def validate(self, where: str = "sim_config") -> None:
-        """Raise ClodsError naming the first field out of range."""
-        positive = ("latent_size", "rollout_length", "batch_size", "train_steps", "normalizer_accumulations", "checkpoint_every")
-        for name in positive:
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ClodsError(f"must be an integer >= 1, got {value!r}", where=f"{where}.{name}")
-        for name in ("hidden_layers", "warmup_steps", "rollout_start_step"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 0:
-                raise ClodsError(f"must be an integer >= 0, got {value!r}", where=f"{where}.{name}")
+        """Raise ClodsError naming the first field out of range (step counts at most `MAX_STEPS`, numbers finite)."""
+        for name in ("latent_size", "rollout_length", "batch_size"):
+            check_count(getattr(self, name), f"{where}.{name}", maximum=sys.maxsize)
+        for name in ("train_steps", "normalizer_accumulations", "checkpoint_every"):
+            check_count(getattr(self, name), f"{where}.{name}")
+        check_count(self.hidden_layers, f"{where}.hidden_layers", minimum=0, maximum=sys.maxsize)
+        for name in ("warmup_steps", "rollout_start_step"):
+            check_count(getattr(self, name), f"{where}.{name}", minimum=0)
         for name in ("world_radius", "learning_rate", "lr_decay_rate", "lr_decay_fraction"):
-            if not getattr(self, name) > 0:
-                raise ClodsError(f"must be > 0, got {getattr(self, name)!r}", where=f"{where}.{name}")
+            check_number(getattr(self, name), f"{where}.{name}", minimum=0, inclusive=False)
         for name in ("noise_std", "noise_gamma", "lr_floor"):
-            if not getattr(self, name) >= 0:
-                raise ClodsError(f"must be >= 0, got {getattr(self, name)!r}", where=f"{where}.{name}")
+            check_number(getattr(self, name), f"{where}.{name}", minimum=0)
         if self.num_threads is not None and self.num_threads < 1:
             raise ClodsError(f"must be >= 1 or null, got {self.num_threads!r}", where=f"{where}.num_threads")
         check_device_name(self.device, f"{where}.device")
