@@ -25,7 +25,6 @@ from rich.markup import escape
 
 from clods_bench.errors import STAGE_ATTRIBUTE, ClodsError, PluginError, environment_problem
 
-EXIT_CHECK_FAILED = 1
 EXIT_INTERNAL = 1
 EXIT_PROBLEM = 2
 EXIT_INTERRUPTED = 130

@@ -14,7 +14,7 @@ import pytest
 from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes
 from clods_bench.benchmark.core.descriptors import PluginSpec, TaskContext
 from clods_bench.benchmark.core.hookspecs import hookimpl
-from clods_bench.benchmark.core.interfaces import CONTRACT_ULPS, RolloutContractError, RolloutInput, check_rollout
+from clods_bench.benchmark.core.interfaces import CONTRACT_ULPS, ContractError, RolloutInput, check_rollout
 from clods_bench.benchmark.core.registry import Registry, default_registry, make_plugin_manager
 from clods_bench.benchmark.outputs.tables import write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
@@ -73,7 +73,7 @@ def test_a_rollout_that_keeps_the_contract_passes_float64_and_divergence_include
 )
 def test_changed_given_positions_are_named(edit, message: str) -> None:
     inp = _input()
-    with pytest.raises(RolloutContractError) as err:
+    with pytest.raises(ContractError) as err:
         check_rollout(edit(_good(inp), inp), inp, "my-sim")
     assert err.value.where == "simulator 'my-sim'" and err.value.what.startswith(message)
     assert err.value.what.endswith(f"(tolerance {_tolerance(inp):.3g} m)")
@@ -84,7 +84,7 @@ def test_a_few_ulps_more_is_refused() -> None:
     inp = _input()
     out = _good(inp)
     out[3, 0, 0] = inp.kinematic_pos[3, 0, 0] + 2 * _tolerance(inp)
-    with pytest.raises(RolloutContractError, match="rollout moved kinematic node 0 \\(HANDLE\\) at frame 3"):
+    with pytest.raises(ContractError, match="rollout moved kinematic node 0 \\(HANDLE\\) at frame 3"):
         check_rollout(out, inp, "s")
 
 
@@ -102,13 +102,13 @@ def test_a_few_ulps_more_is_refused() -> None:
 def test_non_numeric_output_is_one_error_without_a_numpy_warning(out: object, what: str) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # any numpy RuntimeWarning fails the test
-        with pytest.raises(RolloutContractError) as err:
+        with pytest.raises(ContractError) as err:
             check_rollout(out, _input(), "none-sim")
     assert err.value.message == f"simulator 'none-sim': rollout returned {what}, expected a (T,V,3) float32 array of positions"
 
 
 def test_a_wrong_shape_is_named() -> None:
-    with pytest.raises(RolloutContractError) as err:
+    with pytest.raises(ContractError) as err:
         check_rollout(np.zeros((T - 1, V, 3)), _input(), "s")
     assert err.value.message == f"simulator 's': rollout returned shape ({T - 1}, {V}, 3), expected ({T}, {V}, 3)"
 

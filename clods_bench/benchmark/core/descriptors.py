@@ -32,7 +32,9 @@ class PluginSpec:
     """A simulator or renderer plugin: `build(config, context)` returns the object.
 
     `config_cls` is a dataclass; the run's `sim_config` / `renderer_config` mapping is
-    loaded into it (unknown keys are an error), so every option is typed and documented.
+    loaded into it (unknown keys are an error), so every option is typed and documented. It may
+    declare its own rules as `validate(where)` (or `validate()`), raising ClodsError naming the
+    field; `make_config` runs them, and requires every number to be finite, before any work.
     """
 
     name: str

@@ -114,8 +114,8 @@ class Renderer(Protocol):
     def render(self, verts: Any, cameras: Sequence["Camera"]) -> Any: ...
 
 
-class RolloutContractError(ClodsError):
-    """A plugin's output broke the interface's contract (non-numeric output, a wrong shape; for a rollout, given
+class ContractError(ClodsError):
+    """A plugin's output broke its interface's contract (non-numeric output, a wrong shape; for a rollout, given
     frames or kinematic nodes changed): a plugin bug, never a divergence."""
 
 
@@ -127,17 +127,17 @@ leave room for a simulator that re-derives them in another precision, and nothin
 
 
 def check_rollout(out: Any, inp: RolloutInput, sim_name: str) -> np.ndarray:
-    """Check a simulator's rollout against the contract; return it as float32 (NaN allowed at NORMAL nodes:
+    """Check a simulator's rollout against the contract; return it as float32 (NaN/Inf allowed from frame 2 on:
     divergence is data).
 
     The output must be numeric, of shape (T,V,3), and return unchanged (within `CONTRACT_ULPS`) the two given frames
     and every finite position of a kinematic node (NaN/Inf from frame 2 on is a divergence, at any node); a violation
-    is one `RolloutContractError` naming the plugin, the first node and frame that differ."""
+    is one `ContractError` naming the plugin, the first node and frame that differ."""
     where = f"simulator '{sim_name}'"
     arr = numeric_array(out, "rollout", "a (T,V,3) float32 array of positions", where)
     expected = (inp.num_frames, inp.node_type.shape[0], 3)
     if arr.shape != expected:
-        raise RolloutContractError(f"rollout returned shape {arr.shape}, expected {expected}", where=where)
+        raise ContractError(f"rollout returned shape {arr.shape}, expected {expected}", where=where)
     out = arr.astype(np.float32, copy=False)
     _check_given_positions(out, inp, where)
     stage_digests.record("rollout", out)
@@ -146,7 +146,7 @@ def check_rollout(out: Any, inp: RolloutInput, sim_name: str) -> np.ndarray:
 
 def numeric_array(out: Any, call: str, expected: str, where: str) -> np.ndarray:
     """`out` as a numpy array of integers or floats; anything else (None, objects, strings, booleans) is a
-    `RolloutContractError` saying what `call` returned instead of `expected`, before numpy can warn or cast."""
+    `ContractError` saying what `call` returned instead of `expected`, before numpy can warn or cast."""
     arr = None
     if isinstance(out, np.ndarray):
         arr = out
@@ -157,12 +157,12 @@ def numeric_array(out: Any, call: str, expected: str, where: str) -> np.ndarray:
             arr = None
     if arr is None or arr.dtype.kind not in "iuf":
         what = type(out).__name__ if arr is None else f"an array of dtype {arr.dtype}"
-        raise RolloutContractError(f"{call} returned {what}, expected {expected}", where=where)
+        raise ContractError(f"{call} returned {what}, expected {expected}", where=where)
     return arr
 
 
 def _check_given_positions(out: np.ndarray, inp: RolloutInput, where: str) -> None:
-    """Raise RolloutContractError at the first frame 0/1 node, or finite kinematic node of a later frame, that differs
+    """Raise ContractError at the first frame 0/1 node, or finite kinematic node of a later frame, that differs
     from the given position by more than `CONTRACT_ULPS` ulps of the largest given coordinate."""
     given = np.asarray(inp.init_pos, np.float32)
     kinematic = inp.kinematic_mask
@@ -183,7 +183,7 @@ def _check_given_positions(out: np.ndarray, inp: RolloutInput, where: str) -> No
         node = f"node {int(nodes[j])} ({NODE_TYPE_NAMES.get(code, f'node type {code}')})"
         values = f"{_xyz(got[t, j])}, given {_xyz(want[t, j])} (tolerance {tol:.3g} m)"
         what = f"changed given frame {first + t}: {node} is {values}" if frames_given else f"moved kinematic {node} at frame {first + t}: {values}"
-        raise RolloutContractError(f"rollout {what}", where=where, hint="return frames 0 and 1 and every non-NORMAL node's kinematic_pos unchanged")
+        raise ContractError(f"rollout {what}", where=where, hint="return frames 0 and 1 and every non-NORMAL node's kinematic_pos unchanged")
 
 
 def _xyz(p: np.ndarray) -> str:

@@ -27,7 +27,7 @@ from clods_bench import integrity
 from clods_bench.benchmark.core.builders import build_simulator, fit_on_meshes, split_spec
 from clods_bench.benchmark.core.descriptors import TaskContext, TaskResult
 from clods_bench.benchmark.core.fit_cache import fit_cost_seconds
-from clods_bench.benchmark.core.interfaces import RolloutContractError, RolloutInput, Simulator, check_rollout
+from clods_bench.benchmark.core.interfaces import ContractError, RolloutInput, Simulator, check_rollout
 from clods_bench.benchmark.outputs.rollout_samples import ROLLOUT_FILE, save_rollout_sample
 from clods_bench.benchmark.scoring.metrics import diverged_max, recorded_max, rmse_per_step
 from clods_bench.benchmark.scoring.monitors import MeshMonitor, cloth_monitor, first_failure
@@ -140,13 +140,13 @@ def safe_rollout(sim: Simulator, inp: RolloutInput, name: str, locate: bool) -> 
     An exception in `sim.rollout` is caught; with `locate` the largest horizon that runs is
     found by bisection (hi frames fail, lo frames run: the failure is at frame hi - 1) and its
     frames are kept; without it the failure is put at frame 2, the first predicted one. A wrong
-    output (non-numeric, a wrong shape, given positions changed: `RolloutContractError`) is a plugin bug, not a
+    output (non-numeric, a wrong shape, given positions changed: `ContractError`) is a plugin bug, not a
     divergence, and is raised.
     """
     full = inp.num_frames
     try:
         return check_rollout(sim.rollout(inp), inp, name), None, None
-    except RolloutContractError:
+    except ContractError:
         raise
     except Exception as exc:  # noqa: BLE001 - a diverging model may raise anything (memory too); record it and go on
         message = f"{type(exc).__name__}: {exc}"

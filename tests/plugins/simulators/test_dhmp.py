@@ -310,4 +310,6 @@ def test_registered_as_a_learned_simulator():
     from clods_bench.benchmark.core.registry import default_registry
 
     spec = default_registry().get("simulator", "dhmp")
-    assert spec.learned and spec.make_config({"levels": 2}, where="sim_config.dhmp") == DhmpConfig(levels=2)
+    assert spec.learned and spec.make_config({"levels": 4}, where="sim_config.dhmp") == DhmpConfig(levels=4)
+    with pytest.raises(ClodsError, match="must be <= levels"):  # checked when loaded (the 3 bi-stride levels by default)
+        spec.make_config({"levels": 2}, where="sim_config.dhmp")
