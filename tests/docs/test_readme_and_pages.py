@@ -23,8 +23,12 @@ def test_the_readme_is_short() -> None:
     assert len((ROOT / "README.md").read_text().splitlines()) <= 300
 
 
+REFERENCE_PAGES = ("reference/cli.md",)
+"""Generated line for line from `--help` (one row per option): as long as the command line is wide."""
+
+
 def test_no_page_of_the_site_is_long() -> None:
-    long = {page: len(text.splitlines()) for page, text in site_pages().items() if len(text.splitlines()) > 400}
+    long = {page: len(text.splitlines()) for page, text in site_pages().items() if len(text.splitlines()) > 400 and page not in REFERENCE_PAGES}
     assert not long, f"pages over 400 lines: {long}"
 
 
