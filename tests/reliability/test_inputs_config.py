@@ -23,7 +23,7 @@ BAD = [
     ("sim_config.mgn.noise_std=.inf", "sim_config.mgn.noise_std: must be a finite number >= 0, got inf"),
     ("sim_config.mgn.noise_gamma=.nan", "sim_config.mgn.noise_gamma: must be a finite number >= 0, got nan"),
     ("seeds=[-1]", "seeds[0]: must be an integer in [0, 4294967295], got -1"),
-    ("seeds=[]", "seeds: must be a non-empty list of seeds, got [] (e.g. --seeds 0 1)"),
+    ("seeds=[]", "seeds: is empty: a run needs at least one seed (e.g. --set seeds=[0])"),
     ("seeds=[0, 0]", "seeds: lists seed(s) [0] more than once"),
     ("sim_config.nosuchsim.foo=1", f"sim_config.nosuchsim: unknown simulator 'nosuchsim'; known: {SIMS}"),
     ("sim_config.mgm.latent_size=8", f"sim_config.mgm: unknown simulator 'mgm'; known: {SIMS} (did you mean 'mgn'?)"),
@@ -104,5 +104,5 @@ def test_reproduce_refuses_a_bad_value_in_one_line(dry_run: bool, tmp_path: Path
     )
     assert _nothing_created(tmp_path)
     assert main(["reproduce", "--only", "table2_cdg", "--dry-run", *_args(tmp_path, "seeds=[]")]) == 2
-    assert capsys.readouterr().err.strip().startswith("error: seeds: must be a non-empty list of seeds, got [] (e.g. --seeds 0 1) (12 rows: ")
+    assert capsys.readouterr().err.strip().startswith("error: seeds: is empty: a run needs at least one seed (e.g. --set seeds=[0]) (12 rows: ")
     assert _nothing_created(tmp_path)
