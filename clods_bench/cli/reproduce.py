@@ -44,6 +44,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         help="local executor: start no job after SECONDS; tables left unfinished are not written (nor checked), the next run resumes them",
     )
     p.add_argument("--dry-run", action="store_true", help="check the plan and list its runs, run nothing")
+    p.add_argument("--claims", type=Path, metavar="FILE",
+                   help="with --dry-run: check that the claims file's tables, rows and columns exist in the plan (default: "
+                        "docs/claims.yaml where it exists)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
     p.set_defaults(func=cmd_reproduce)
 
@@ -96,6 +99,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         console.print(f"{sum(jobs.values())} of {len(jobs)} seed jobs have records under {runs[0][1].runs_dir if runs else '-'}; {len(jobs) - sum(jobs.values())} to run")
         if args.check is not None:
             _report_config_changes(args.check, runs, rdirs, args.preset)
+        _check_claims(args, runs)
         return 0
     manifest = reproduce(
         args.preset, out, plugin_registry(), err_console, args.executor, args.plan, overrides, args.only, args.ray_address, args.jobs or default_jobs(), args.first_seeds,
@@ -116,6 +120,22 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return _report_check(args.check, out, [t for t in manifest["tables"] if t not in unfinished], args.first_seeds, args.preset,
                              not_run=sorted(unfinished))  # fmt: skip
     return 0
+
+
+def _check_claims(args: argparse.Namespace, runs: Sequence[tuple[Any, RunConfig]]) -> None:
+    """`--dry-run`: the claims file (`--claims`, else docs/claims.yaml where it exists) against the whole plan's rows."""
+    from clods_bench.docsgen.claims import check_claims_against_plan
+
+    path = args.claims or (Path("docs/claims.yaml") if Path("docs/claims.yaml").is_file() else None)
+    if path is None or args.only:
+        return  # `--only` lists part of the plan: a claim on another table is not wrong
+    if not path.is_file():
+        raise ClodsError("no such file", where=str(path))
+    labels: dict[str, set[str]] = {}
+    for run, _ in runs:
+        labels.setdefault(run.table, set()).add(run.label)
+    check_claims_against_plan(path, labels)
+    console.print(f"{path}: every claim's table, rows and columns are in the plan", highlight=False)
 
 
 def _plan_runs(args: argparse.Namespace, overrides: Sequence[str]) -> list[tuple[Any, RunConfig]]:

@@ -7,7 +7,7 @@ header defines them). A comparison with a NaN (a diverged rollout) does not hold
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from clods_bench.docsgen.sources import CsvTable, as_list
@@ -25,13 +25,16 @@ class Columns:
 
 @dataclass
 class Verdict:
-    """The outcome of a rule on one table: holds, how many comparisons held, and the rows it read."""
+    """The outcome of a rule on one table: holds, how many comparisons held, the rows it read, and each
+    comparison's margin (column group, by how much it holds: positive when it holds, in the columns' units;
+    -inf when a value is NaN)."""
 
     holds: bool
     passed: int
     total: int
     rows: list[str]
     missing: list[str]
+    margins: list[tuple[str, float]] = field(default_factory=list)
 
 
 class MissingRows(Exception):
@@ -53,9 +56,14 @@ def _values(table: CsvTable, row: str, cols: Columns) -> list[float]:
 
 def _beats(a: float, b: float, higher: bool, by: float = 1.0) -> bool:
     """a is better than b (by the factor `by`); False when either is NaN."""
+    return _margin(a, b, higher, by) > 0
+
+
+def _margin(a: float, b: float, higher: bool, by: float = 1.0) -> float:
+    """By how much a beats b (by the factor `by`), in the values' units: positive when it does; -inf with a NaN."""
     if math.isnan(a) or math.isnan(b):
-        return False
-    return a > b * by if higher else a * by < b
+        return -math.inf
+    return a - b * by if higher else b - a * by
 
 
 def rule_better(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], Columns]) -> Verdict:
@@ -67,8 +75,13 @@ def rule_better(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], 
     if missing:
         raise MissingRows(missing)
     mine = _values(table, spec["row"], cols)
-    checks = [_beats(m, o, cols.higher_is_better, by) for other in others for m, o in zip(mine, _values(table, other, cols))]
-    return Verdict(all(checks), sum(checks), len(checks), rows, [])
+    margins = [_margin(m, o, cols.higher_is_better, by) for other in others for m, o in zip(mine, _values(table, other, cols))]
+    return _verdict(margins, rows, cols)
+
+
+def _verdict(margins: list[float], rows: list[str], cols: Columns) -> Verdict:
+    checks = [m > 0 for m in margins]
+    return Verdict(all(checks), sum(checks), len(checks), rows, [], [(cols.name, m) for m in margins])
 
 
 def rule_within(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], Columns]) -> Verdict:
@@ -80,12 +93,15 @@ def rule_within(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], 
     if missing:
         raise MissingRows(missing)
     ref = _values(table, spec["of"], cols)
-    checks = []
+    margins = []
     for row in subjects:
         for v, r in zip(_values(table, row, cols), ref):
-            ok = not (math.isnan(v) or math.isnan(r)) and (v * factor >= r if cols.higher_is_better else v <= r * factor)
-            checks.append(ok)
-    return Verdict(all(checks), sum(checks), len(checks), rows, [])
+            if math.isnan(v) or math.isnan(r):
+                margins.append(-math.inf)
+            else:  # holding at the boundary counts: the smallest positive margin stands for 0
+                m = v * factor - r if cols.higher_is_better else r * factor - v
+                margins.append(m if m != 0 else math.ulp(0.0))
+    return _verdict(margins, rows, cols)
 
 
 def rule_order(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], Columns]) -> Verdict:
@@ -96,8 +112,8 @@ def rule_order(table: CsvTable, spec: dict[str, Any], columns: Callable[[str], C
     if missing:
         raise MissingRows(missing)
     values = [_values(table, r, cols) for r in rows]
-    checks = [_beats(a[i], b[i], cols.higher_is_better) for a, b in zip(values, values[1:]) for i in range(len(cols.columns))]
-    return Verdict(all(checks), sum(checks), len(checks), rows, [])
+    margins = [_margin(a[i], b[i], cols.higher_is_better) for a, b in zip(values, values[1:]) for i in range(len(cols.columns))]
+    return _verdict(margins, rows, cols)
 
 
 RULES: dict[str, Callable[[CsvTable, dict[str, Any], Callable[[str], Columns]], Verdict]] = {
@@ -123,7 +139,8 @@ def evaluate(rule: dict[str, Any], table: CsvTable, columns: Callable[[str], Col
         if missing:
             raise MissingRows(sorted(set(missing)))
         rows = list(dict.fromkeys(r for p in parts for r in p.rows))
-        return Verdict(all(p.holds for p in parts), sum(p.passed for p in parts), sum(p.total for p in parts), rows, [])
+        margins = [m for p in parts for m in p.margins]
+        return Verdict(all(p.holds for p in parts), sum(p.passed for p in parts), sum(p.total for p in parts), rows, [], margins)
     if kind not in RULES:
         raise ValueError(f"unknown rule '{kind}'; known: {', '.join([*RULES, 'all'])}")
     return RULES[kind](table, rule[kind], columns)

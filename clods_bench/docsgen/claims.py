@@ -12,7 +12,17 @@ from clods_bench.docsgen.sources import field as required
 from clods_bench.errors import ClodsError
 
 CLAIMS_FILE = Path("docs/claims.yaml")
-HOLDS, FAILS, NOT_RUN = "holds", "does not hold", "not run"
+HOLDS, FAILS, NOT_RUN, NOISE = "holds", "does not hold", "not run", "within noise"
+FIXTURE = "regression fixture"  # a size of this kind is listed after the evidence, apart from it
+
+
+@dataclass(frozen=True)
+class NoiseBand:
+    """How far a one-seed number moves between fits on this benchmark, for the column groups it applies to."""
+
+    value: float
+    groups: tuple[str, ...]
+    what: str
 
 
 @dataclass
@@ -25,6 +35,10 @@ class Outcome:
     ours: str
     seeds: int | None = None
     files: list[Path] = field(default_factory=list)
+    counted: bool = True
+    """False where the paper scores another quantity: the outcome supports the claim but is not counted."""
+    noise: str = ""
+    """The noise band a one-seed verdict was read with, in words (empty: none applied)."""
 
 
 @dataclass
@@ -80,10 +94,39 @@ def rule_text(rule: dict[str, Any], columns: dict[str, Columns]) -> str:
     return f"{' > '.join(as_list(spec['rows']))} (best first) in every column of {cols.label}"
 
 
-def _sources(claim: dict[str, Any], sizes: dict[str, Any], root: Path, path: Path) -> list[tuple[str, str, list[Path], bool, dict]]:
-    """(size label, kind, files, partial, aliases) for every size the claim is evaluated at."""
+def _noise(size: dict[str, Any], columns: dict[str, Columns], path: Path) -> NoiseBand | None:
+    entry = size.get("noise")
+    if entry is None:
+        return None
+    groups = tuple(required(entry, "columns", path, list))
+    unknown = [g for g in groups if g not in columns]
+    if unknown:
+        raise ClodsError(f"noise: unknown column group(s) {', '.join(unknown)}; known: {', '.join(columns)}", where=where(path, entry))
+    value = float(required(entry, "value", path, (int, float)))
+    if not value >= 0:
+        raise ClodsError(f"noise: value must be >= 0, got {value!r}", where=where(path, entry))
+    return NoiseBand(value, groups, required(entry, "what", path))
+
+
+def status_of(verdict: Verdict, seeds: int | None, band: NoiseBand | None) -> str:
+    """holds / does not hold; a one-seed verdict with a noise band reads 'within noise' when some comparison's
+    margin lies inside the band and none fails by more than it."""
+    if band is None or seeds != 1:
+        return HOLDS if verdict.holds else FAILS
+    inside = False
+    for group, margin in verdict.margins:
+        banded = group in band.groups
+        if margin <= 0 and not (banded and margin >= -band.value):
+            return FAILS
+        inside = inside or (banded and abs(margin) <= band.value)
+    return NOISE if inside else HOLDS
+
+
+def _sources(claim: dict[str, Any], sizes: dict[str, Any], root: Path, path: Path) -> list[tuple[str, str, list[Path], bool, dict, Any]]:
+    """(size label, kind, files, partial, aliases, size spec) for every size the claim is evaluated at, the evidence
+    first and a regression fixture last."""
     if "sources" in claim:
-        return [(label, "measurement", [root / f for f in as_list(files)], False, {})
+        return [(label, "measurement", [root / f for f in as_list(files)], False, {}, {})
                 for label, files in claim["sources"].items() if not label.startswith("__")]  # fmt: skip
     table = required(claim, "table", path)
     out = []
@@ -93,8 +136,8 @@ def _sources(claim: dict[str, Any], sizes: dict[str, Any], root: Path, path: Pat
         size = sizes[name]
         files = (size.get("files") or {}).get(table, size["file"].format(table=table))
         aliases = (size.get("aliases") or {}).get(table, {})
-        out.append((size["label"], size["kind"], [root / size["folder"] / f for f in as_list(files)], bool(size.get("partial")), aliases))
-    return out
+        out.append((size["label"], size["kind"], [root / size["folder"] / f for f in as_list(files)], bool(size.get("partial")), aliases, size))
+    return sorted(out, key=lambda source: source[1] == FIXTURE)
 
 
 def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
@@ -113,7 +156,11 @@ def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
         except KeyError as exc:
             raise ClodsError(f"unknown column group {exc}; known: {', '.join(columns)}", where=where(path, entry)) from None
         outcomes = []
-        for label, kind, files, partial, aliases in _sources(entry, sizes, root, path):
+        counted = entry.get("counts", True)
+        if not isinstance(counted, bool):
+            raise ClodsError(f"counts must be true or false, got {counted!r}", where=where(path, entry))
+        for label, kind, files, partial, aliases, size in _sources(entry, sizes, root, path):
+            band = _noise(size, columns, path)
             present = [f for f in files if f.is_file()]
             if len(present) < len(files):
                 gone = ", ".join(str(f.relative_to(root)) for f in files if not f.is_file())
@@ -133,8 +180,45 @@ def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
                 continue
             except ValueError as exc:
                 raise ClodsError(f"claim '{entry.get('id')}': {exc}", where=where(path, entry)) from None
-            status = HOLDS if verdict.holds else FAILS
-            outcomes.append(Outcome(label, kind, status, _ours(table, verdict, groups), table.seeds(verdict.rows), present))
+            seeds = table.seeds(verdict.rows)
+            status = status_of(verdict, seeds, band)
+            noise = f"one seed: within {band.value:g} counts as noise ({band.what})" if band is not None and seeds == 1 else ""
+            outcomes.append(Outcome(label, kind, status, _ours(table, verdict, groups), seeds, present, counted, noise))
         out.append(Claim(required(entry, "id", path), required(entry, "title", path), required(entry, "claim", path),
                          required(entry, "where", path), required(entry, "paper", path), text, outcomes))  # fmt: skip
     return out
+
+
+def rule_rows(rule: dict[str, Any]) -> list[str]:
+    """Every row label a rule reads."""
+    if "all" in rule:
+        return [r for sub in rule["all"] for r in rule_rows(sub)]
+    out: list[str] = []
+    for kind, spec in rule.items():
+        if kind.startswith("__") or not isinstance(spec, dict):
+            continue
+        for key in ("row", "of", "than", "rows"):
+            out += [str(v) for v in as_list(spec.get(key, []))]
+    return out
+
+
+def check_claims_against_plan(path: Path, labels: dict[str, set[str]]) -> None:
+    """Every claim on a plan table names a table of the plan, rows the plan makes in it and column groups the file
+    defines; else one ClodsError naming the claim's line. `labels`: table id -> the row labels the plan gives it."""
+    doc = load_yaml(path)
+    columns = _columns(required(doc, "columns", path, dict), path)
+    for entry in required(doc, "claims", path, list):
+        if "sources" in entry:
+            continue
+        table = required(entry, "table", path)
+        if table not in labels:
+            raise ClodsError(f"claim '{entry.get('id')}': table '{table}' is not a table of the plan (tables: {', '.join(labels)})",
+                             where=where(path, entry))  # fmt: skip
+        rule = required(entry, "rule", path, dict)
+        unknown = [c for c in rule_columns(rule) if c not in columns]
+        if unknown:
+            raise ClodsError(f"claim '{entry.get('id')}': unknown column group {', '.join(unknown)}; known: {', '.join(columns)}", where=where(path, entry))
+        missing = [r for r in dict.fromkeys(rule_rows(rule)) if r not in labels[table]]
+        if missing:
+            raise ClodsError(f"claim '{entry.get('id')}': the plan makes no row {', '.join(repr(m) for m in missing)} in table '{table}'",
+                             where=where(path, entry), hint=f"its rows: {', '.join(sorted(labels[table]))}")  # fmt: skip

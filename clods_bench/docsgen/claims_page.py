@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from markdown.extensions.toc import slugify
 
-from clods_bench.docsgen.claims import FAILS, HOLDS, NOT_RUN, Claim
+from clods_bench.docsgen.claims import FAILS, FIXTURE, HOLDS, NOISE, NOT_RUN, Claim
 from clods_bench.errors import ClodsError
 
-BADGE = {HOLDS: "holds", FAILS: "**does not hold**", NOT_RUN: "not run"}
+BADGE = {HOLDS: "holds", FAILS: "**does not hold**", NOISE: "within noise", NOT_RUN: "not run"}
 
 
 def anchor(claim: Claim) -> str:
@@ -19,30 +19,45 @@ def summary_table(claims: list[Claim], page: str | None = "") -> list[str]:
     """One row per claim: title (linked to its section of `page`; None: no link), the paper's place, the verdict per size.
 
     Sizes of the plan's tables get a column each; other measurements (a GPU's) share the last column."""
-    sizes = list(dict.fromkeys(o.size for c in claims for o in c.outcomes if o.kind != "measurement"))
-    lines = [f"| claim | in the paper | {' | '.join(sizes)} | other measurements |", f"| --- | --- |{' --- |' * (len(sizes) + 1)}"]
+    evidence = list(dict.fromkeys(o.size for c in claims for o in c.outcomes if o.kind not in ("measurement", FIXTURE)))
+    fixtures = list(dict.fromkeys(o.size for c in claims for o in c.outcomes if o.kind == FIXTURE))
+    head = [*evidence, "other measurements", *(f"{s} ({FIXTURE}, not evidence)" for s in fixtures)]
+    lines = [f"| claim | in the paper | {' | '.join(head)} |", f"| --- | --- |{' --- |' * len(head)}"]
     for c in claims:
         by_size = {o.size: o for o in c.outcomes}
-        cells = [BADGE[by_size[s].status] if s in by_size else "-" for s in sizes]
-        other = "; ".join(f"{o.size}: {BADGE[o.status]}" for o in c.outcomes if o.kind == "measurement") or "-"
+
+        def cell(o) -> str:  # noqa: ANN001
+            return BADGE[o.status] + ("" if o.counted else " (not counted)")
+
+        other = "; ".join(f"{o.size}: {cell(o)}" for o in c.outcomes if o.kind == "measurement") or "-"
+        cells = [cell(by_size[s]) if s in by_size else "-" for s in evidence] + [other]
+        cells += [cell(by_size[s]) if s in by_size else "-" for s in fixtures]
         title = c.title if page is None else f"[{c.title}]({page}#{anchor(c)})"
-        lines.append(f"| {title} | {c.where} | {' | '.join(cells)} | {other} |")
+        lines.append(f"| {title} | {c.where} | {' | '.join(cells)} |")
     return lines
 
 
 def counts(claims: list[Claim]) -> dict[str, dict[str, int]]:
-    """Per size label: how many claims hold, do not hold, did not run."""
+    """Per size label, evidence first and a regression fixture last: how many claims hold, hold only within noise, do
+    not hold, did not run (claims the paper scores on another quantity are not counted)."""
     out: dict[str, dict[str, int]] = {}
+    kinds: dict[str, str] = {}
     for c in claims:
         for o in c.outcomes:
-            out.setdefault(o.size, {HOLDS: 0, FAILS: 0, NOT_RUN: 0})[o.status] += 1
-    return out
+            kinds[o.size] = o.kind
+            tally = out.setdefault(o.size, {HOLDS: 0, NOISE: 0, FAILS: 0, NOT_RUN: 0})
+            if o.counted:
+                tally[o.status] += 1
+    return dict(sorted(out.items(), key=lambda item: kinds[item[0]] == FIXTURE))
 
 
 def counts_table(claims: list[Claim]) -> list[str]:
-    """How many claims hold, do not hold and did not run, per size."""
-    lines = ["| size | holds | does not hold | not run |", "| --- | --- | --- | --- |"]
-    lines += [f"| {size} | {n[HOLDS]} | {n[FAILS]} | {n[NOT_RUN]} |" for size, n in counts(claims).items()]
+    """How many claims hold, hold within noise, do not hold and did not run, per size."""
+    lines = ["| size | holds | within noise | does not hold | not run |", "| --- | --- | --- | --- | --- |"]
+    kinds = {o.size: o.kind for c in claims for o in c.outcomes}
+    for size, n in counts(claims).items():
+        name = f"{size} ({FIXTURE}, not evidence)" if kinds[size] == FIXTURE else size
+        lines.append(f"| {name} | {n[HOLDS]} | {n[NOISE]} | {n[FAILS]} | {n[NOT_RUN]} |")
     return lines
 
 
@@ -65,8 +80,9 @@ def claims_body(claims: list[Claim]) -> str:
         for o in c.outcomes:
             seeds = "-" if o.seeds is None else str(o.seeds)
             files = ", ".join(f"`{f.name}`" for f in o.files)
-            ours = o.ours + (f"<br>from {files}" if files else "")
-            lines.append(f"| {o.size} ({o.kind}) | {seeds} | {ours} | {BADGE[o.status]} |")
+            ours = o.ours + (f"<br>from {files}" if files else "") + (f"<br>{o.noise}" if o.noise else "")
+            counted = "" if o.counted else " (not counted: the paper scores another quantity)"
+            lines.append(f"| {o.size} ({o.kind}) | {seeds} | {ours} | {BADGE[o.status]}{counted} |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 

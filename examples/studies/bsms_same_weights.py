@@ -120,7 +120,7 @@ def compare_processor(
     """Outputs and gradients of the two processors with the same weights, float64; the reference on its own levels."""
     torch.manual_seed(0)
     ref = bsgmp(cfg["levels"], cfg["latent"], cfg["hidden"], 5).double()
-    ours = BsmsProcessor(cfg["latent"], cfg["hidden"], ["mesh"], BsmsConfig(latent_size=cfg["latent"], levels=cfg["levels"])).double()
+    ours = BsmsProcessor(cfg["latent"], cfg["hidden"], ["mesh"], BsmsConfig(latent_size=cfg["latent"], levels=cfg["levels"], position_scale="raw", fibre_norms="joint")).double()
     mapping = copy_weights(ref, ours, cfg["levels"])
     g = torch.Generator().manual_seed(1)
     n = len(mesh_pos)

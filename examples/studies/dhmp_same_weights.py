@@ -139,7 +139,7 @@ def compare_processor(core: Any, s: np.ndarray, r: np.ndarray, mesh_pos: np.ndar
     """Two training calls of both processors with the same weights and noise, float64."""
     torch.manual_seed(0)
     ref = core.EvoMesh(cfg["levels"], cfg["fixed"], cfg["bottom"], cfg["latent"], cfg["hidden"], 3, True, True, False).double()
-    config = DhmpConfig(latent_size=cfg["latent"], levels=cfg["levels"], fixed_levels=cfg["fixed"], bottom_blocks=cfg["bottom"])
+    config = DhmpConfig(latent_size=cfg["latent"], levels=cfg["levels"], fixed_levels=cfg["fixed"], bottom_blocks=cfg["bottom"], position_scale="raw")
     ours = DhmpProcessor(cfg["latent"], cfg["hidden"], ["mesh"], config).double().train()
     mapping = copy_weights(ref, ours, cfg["levels"], cfg["fixed"])
     recorded: list[torch.Tensor] = []

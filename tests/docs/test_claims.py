@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from clods_bench.docsgen.claim_rules import Columns, MissingRows, evaluate
-from clods_bench.docsgen.claims import FAILS, HOLDS, NOT_RUN, evaluate_claims
+from clods_bench.docsgen.claims import FAILS, HOLDS, NOISE, NOT_RUN, evaluate_claims
+from clods_bench.docsgen.claims_page import counts, summary_table
 from clods_bench.docsgen.sources import CsvTable
 from clods_bench.errors import ClodsError
 from tests.docs.pages import ROOT
@@ -66,7 +67,7 @@ def test_the_committed_claims_evaluate_at_every_size() -> None:
     for c in claims:
         assert c.outcomes, c.id
         for o in c.outcomes:
-            assert o.status in (HOLDS, FAILS, NOT_RUN), (c.id, o)
+            assert o.status in (HOLDS, FAILS, NOISE, NOT_RUN), (c.id, o)
             if o.size == "`ci`":
                 assert o.status != NOT_RUN, f"{c.id}: every claim on a plan table must be decided at ci"
                 assert o.seeds is not None and o.seeds >= 1
@@ -113,3 +114,52 @@ def test_nan_in_a_committed_csv_reads_as_not_holding(tmp_path: Path) -> None:
     (c,) = evaluate_claims(root)
     assert c.outcomes[0].status == FAILS and "n/a" in c.outcomes[0].ours
     assert math.isnan(CsvTable([root / "results/ci/t.csv"]).value("A", "a/mean"))
+
+
+NOISY = ("sizes:\n"
+         "  ci: {label: ci, kind: regression fixture, folder: results/ci, file: '{table}.csv', partial: false}\n"
+         "  small: {label: small, kind: evidence, folder: results/small-partial, file: '{table}_small.csv', partial: true,\n"
+         "          noise: {value: 0.1, columns: [err], what: paired fits}}\n"
+         "columns:\n  err: {label: error, better: lower, columns: [a/mean]}\n  psnr: {label: PSNR, better: higher, columns: [p/mean]}\n"
+         "claims:\n")  # fmt: skip
+
+
+def _noisy_root(tmp_path: Path, small_csv: str, claims: str = CLAIM) -> Path:
+    (tmp_path / "docs").mkdir(parents=True)
+    (tmp_path / "results/ci").mkdir(parents=True)
+    (tmp_path / "results/small-partial").mkdir(parents=True)
+    (tmp_path / "results/ci/t.csv").write_text("method,seeds,a/mean,p/mean\nA,2,1.0,30\nB,2,2.0,29\n")
+    (tmp_path / "results/small-partial/t_small.csv").write_text(small_csv)
+    (tmp_path / "docs/claims.yaml").write_text(NOISY + claims)
+    return tmp_path
+
+
+@pytest.mark.parametrize("a,b,status", [
+    (1.0, 1.5, HOLDS),    # holds by 0.5, outside the 0.1 band
+    (1.0, 1.05, NOISE),   # holds by 0.05: inside the band
+    (1.05, 1.0, NOISE),   # fails by 0.05: inside the band
+    (1.3, 1.0, FAILS),    # fails by 0.3
+])  # fmt: skip
+def test_a_one_seed_margin_inside_the_noise_band_reads_within_noise(tmp_path: Path, a: float, b: float, status: str) -> None:
+    (c,) = evaluate_claims(_noisy_root(tmp_path, f"method,seeds,a/mean,p/mean\nA,1,{a},30\nB,1,{b},29\n"))
+    small = next(o for o in c.outcomes if o.size == "small")
+    assert small.status == status and "paired fits" in small.noise
+
+
+def test_the_band_applies_to_one_seed_and_its_own_columns_only(tmp_path: Path) -> None:
+    (c,) = evaluate_claims(_noisy_root(tmp_path / "two", "method,seeds,a/mean,p/mean\nA,2,1.05,30\nB,2,1.0,29\n"))
+    assert next(o for o in c.outcomes if o.size == "small").status == FAILS  # two seeds: the one-seed band is not theirs
+    psnr = CLAIM.replace("columns: err", "columns: psnr")
+    (c,) = evaluate_claims(_noisy_root(tmp_path / "psnr", "method,seeds,a/mean,p/mean\nA,1,1.0,29.95\nB,1,1.0,30\n", psnr))
+    assert next(o for o in c.outcomes if o.size == "small").status == FAILS  # PSNR has no band: 0.05 dB short fails
+
+
+def test_evidence_comes_first_and_a_claim_the_paper_scores_otherwise_is_not_counted(tmp_path: Path) -> None:
+    extra = CLAIM.replace("id: c1", "id: c2").replace("title: C one", "title: C two").replace("    rule:", "    counts: false\n    rule:")
+    claims = evaluate_claims(_noisy_root(tmp_path, "method,seeds,a/mean,p/mean\nA,1,1.0,30\nB,1,1.5,29\n", CLAIM + extra))
+    assert [o.size for o in claims[0].outcomes] == ["small", "ci"]  # the fixture after the evidence
+    assert list(counts(claims)) == ["small", "ci"]
+    assert counts(claims)["small"] == {HOLDS: 1, NOISE: 0, FAILS: 0, NOT_RUN: 0}  # c2 holds too but is not counted
+    header = summary_table(claims, None)[0]
+    assert header.index("small") < header.index("other measurements") < header.index("ci (regression fixture, not evidence)")
+    assert "(not counted)" in summary_table(claims, None)[3]

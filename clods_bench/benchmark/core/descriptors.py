@@ -46,6 +46,18 @@ class PluginSpec:
     """Device kinds the plugin runs on ('cpu', 'cuda'); None: 'cpu', and 'cuda' too when its config has a `device`
     option. The run's `device` (`--device`) reaches the plugin only for a kind listed here: one that lists 'cpu'
     alone stays on the CPU (the run names it), and its `device` option set to another kind is an error."""
+    label: str | None = None
+    """The name its table rows print (a published model's name, e.g. 'MGN'); None: the plugin name. Tables, docs and
+    claims all take it from here (`row_label`), so they cannot disagree."""
+    variant: str | None = None
+    """How it differs from the published model it is named after, in a few words (e.g. 'MGN cloth frame'); every row
+    then prints it after the name: 'BSMS (MGN cloth frame)'. None: it is that model (same architecture, loss and
+    training recipe, shown by a same-weights comparison)."""
+
+    def row_label(self, first_half: bool = False) -> str:
+        """The table row label: the label (or name), '*' for the first-half training subset, then '(variant)'."""
+        base = (self.label or self.name) + ("*" if first_half else "")
+        return f"{base} ({self.variant})" if self.variant else base
 
     def make_config(self, values: Mapping[str, Any], where: str) -> Any:
         """Load a mapping into this plugin's config dataclass, failing loudly on unknown keys, and check its values:

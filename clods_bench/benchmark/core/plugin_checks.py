@@ -50,6 +50,10 @@ def check_hook_result(kind: str, hook: str, result: Any) -> list[Any]:
             if not callable(item.build):
                 raise ClodsError(f"{kind} '{name}': build is a {type(item.build).__name__}, expected a function (config, context) -> object")
             check_config_class(item.config_cls, f"{kind} '{name}'")
+            for field in ("label", "variant"):
+                value = getattr(item, field)
+                if value is not None and (not isinstance(value, str) or not value.strip()):
+                    raise ClodsError(f"{kind} '{name}': {field} {value!r} must be a non-empty string or None")
         if isinstance(item, TaskSpec):
             if not callable(item.run):
                 raise ClodsError(f"task '{name}': run is a {type(item.run).__name__}, expected a function (context) -> TaskResult")

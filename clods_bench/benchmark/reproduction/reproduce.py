@@ -59,8 +59,9 @@ class PlanRun:
     """Id of the table this row belongs to."""
     task: str
     """Task name (must be registered)."""
-    label: str
-    """Row label (unique within its table and scene; also names the record directory)."""
+    label: str | None = None
+    """Row label (unique within its table and scene; also names the record directory). None: the plugin's own
+    (`PluginSpec.row_label`, e.g. 'BSMS (MGN cloth frame)'), for a row of one plugin whose plugin declares one."""
     sim: str | None = None
     """Simulator plugin."""
     renderer: str | None = None
@@ -119,6 +120,31 @@ def plan_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
 
 
+def settle_label(run: PlanRun, registry: Any) -> str | None:
+    """Give a row without a label its plugin's row label, and check a row's label against its plugins' names: a row
+    naming a variant plugin's published name must say how it differs. Returns the problem, or None."""
+    used = [(kind, name) for kind, name in (("simulator", run.sim), ("renderer", run.renderer), ("video_predictor", run.predictor)) if name]
+    specs = []
+    for kind, name in used:
+        try:
+            specs.append(registry.get(kind, name))
+        except ClodsError:
+            specs.append(None)  # an unknown plugin is reported with the row's config
+    if run.label is None:
+        if len(used) != 1 or specs[0] is None or getattr(specs[0], "label", None) is None:
+            run.label = "+".join(name for _, name in used) or run.task
+            named = ", ".join(f"{kind} '{name}'" for kind, name in used) or "no plugin"
+            return f"no label, and {named} declares none (PluginSpec.label): give the row a `label:`"
+        run.label = specs[0].row_label(run.train_subset == "first_half")
+        return None
+    for spec in specs:
+        variant, published = getattr(spec, "variant", None), getattr(spec, "label", None)
+        if variant and published and published in run.label and variant not in run.label:
+            return (f"label '{run.label}' names {published}, but plugin '{spec.name}' is a variant ({variant}): the label must say "
+                    f"'{variant}' (or leave the label out for '{spec.row_label(run.train_subset == 'first_half')}')")
+    return None
+
+
 def run_name(run: PlanRun) -> str:
     """A stable id of a plan row: '<table>/<label>', with '@<scene>' when the row names its scene."""
     return f"{run.table}/{run.label}" + (f"@{run.scene}" if run.scene else "")
@@ -169,7 +195,11 @@ def build_configs(
     labels: dict[str, set[tuple[str, str]]] = {}  # (label, scene) per table
     out: list[tuple[PlanRun, RunConfig]] = []
     for i, run in enumerate(plan.runs):
+        label_problem = settle_label(run, registry)
         where = f"runs[{i}] ({run_name(run)})"
+        if label_problem:
+            problems.append(f"{where}: {label_problem}")
+            continue
         table = tables.get(run.table)
         if table is None:
             problems.append(f"{where}: unknown table '{run.table}' (tables: {', '.join(tables) or 'none'})")

@@ -44,16 +44,22 @@ only: a stored value is the same sum, perhaps in another seed order)."""
 
 def default_label(cfg: RunConfig, registry: Registry) -> str:
     """Row label: the explicit label, else the one the task declares for the config (`TaskSpec.row_label`, e.g. CDG's
-    CloDS rows), else the plugin name(s), '*' marking the first-half training subset."""
+    CloDS rows), else the plugin's own row label (`PluginSpec.row_label`: its published name, '*' marking the
+    first-half training subset, then how a variant differs), else the plugin names joined by '+'."""
     if cfg.label:
         return cfg.label
     declare = getattr(registry.get("task", cfg.task), "row_label", None)
     declared = declare(cfg) if declare is not None else None
     if declared:
         return str(declared)
-    parts = [p for p in (cfg.sim, cfg.renderer, cfg.predictor) if p]
-    label = "+".join(parts) or cfg.task
-    return label + ("*" if cfg.train_subset == "first_half" else "")
+    first_half = cfg.train_subset == "first_half"
+    used = [(kind, name) for kind, name in (("simulator", cfg.sim), ("renderer", cfg.renderer), ("video_predictor", cfg.predictor)) if name]
+    if len(used) == 1:
+        spec = registry.get(*used[0])
+        if hasattr(spec, "row_label"):
+            return str(spec.row_label(first_half))
+    label = "+".join(name for _, name in used) or cfg.task
+    return label + ("*" if first_half else "")
 
 
 def config_digest(cfg: RunConfig) -> str:

@@ -34,18 +34,21 @@ def clods_bench_renderers() -> list[PluginSpec]:
     return [
         PluginSpec(
             name="games",
+            label="GaMeS",
             description="GaMeS: Gaussians on mesh faces (fixed barycentric weights, Gram-Schmidt frames), constant opacity.",
             build=_build_games,
             config_cls=GamesConfig,
         ),
         PluginSpec(
             name="smgs",
+            label="SMGS",
             description="SMGS (CloDS eq. 4): GaMeS with opacity = MLP(world, mesh-space position of each Gaussian).",
             build=_build_smgs,
             config_cls=SmgsConfig,
         ),
         PluginSpec(
             name="gs3d",
+            label="3DGS (per frame)",
             description="Per-frame 3D Gaussian splatting fitted on every frame independently (free geometry; no temporal or mesh prior).",
             build=_build_gs3d,
             config_cls=Gs3dConfig,

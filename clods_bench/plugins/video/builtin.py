@@ -47,11 +47,13 @@ def clods_bench_video_predictors() -> list[PluginSpec]:
     return [
         PluginSpec(
             name="copylast",
+            label="Copy last",
             description="Copy the last observed frame into every future frame (the floor for video prediction).",
             build=_build_copylast,
         ),
         PluginSpec(
             name="simvp",
+            label="SimVP",
             description="SimVP (v1) (Gao et al. CVPR 2022, the authors' code): CNN encoder, Inception U-Net translator over stacked time, CNN decoder; MSE, Adam one-cycle at 0.01.",
             build=_build_simvp,
             config_cls=SimvpConfig,
@@ -59,6 +61,7 @@ def clods_bench_video_predictors() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="tau",
+            label="TAU",
             description="TAU (Tan et al. CVPR 2023, the authors' OpenSTL code): SimVP v2 encoder/decoder around temporal attention units; MSE + 0.1 x differential divergence.",
             build=_build_tau,
             config_cls=TauConfig,
@@ -66,6 +69,7 @@ def clods_bench_video_predictors() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="mau",
+            label="MAU",
             description="MAU (Chang et al. NeurIPS 2021, the authors' code): recurrent motion-aware units attending over past states; MSE with scheduled sampling.",
             build=_build_mau,
             config_cls=MauConfig,
@@ -73,6 +77,7 @@ def clods_bench_video_predictors() -> list[PluginSpec]:
         ),
         PluginSpec(
             name="mmvp",
+            label="MMVP",
             description="MMVP (Zhong et al. 2023): motion matrices of feature maps, predicted and composed with the last frame's features.",
             build=_build_mmvp,
             config_cls=MmvpConfig,

@@ -60,14 +60,17 @@ def test_backbone_ablation_has_every_learned_backbone_and_reuses_table2_for_mgn(
 
     runs = build_configs(load_plan(default_plan_path()), "ci", default_registry())
     rows = {(run.table, run.label): cfg for run, cfg in runs}
+    variant = {"mgn": "", "bsms": " (MGN cloth frame)", "hcmt": " (MGN cloth frame)", "dhmp": " (MGN cloth frame)"}
     for sim in ("mgn", "bsms", "hcmt", "dhmp"):
-        star, clods = rows[("ablation_backbone", f"{sim.upper()}*")], rows[("ablation_backbone", f"CloDS ({sim.upper()})")]
+        name, qualifier = sim.upper(), variant[sim]
+        star = rows[("ablation_backbone", f"{name}*{qualifier}")]
+        clods = rows[("ablation_backbone", f"CloDS ({name}{qualifier.replace(' (', ', ').rstrip(')')})")]
         assert (star.sim, star.renderer, star.train_subset) == (sim, None, "first_half")
         assert (clods.sim, clods.renderer) == (sim, "smgs") and clods.task_config["clods"]["variant"] == "finetune"
     assert config_identity(rows[("ablation_backbone", "MGN*")]) == config_identity(rows[("table2_cdg", "MGN*")])
     assert config_identity(rows[("ablation_backbone", "CloDS (MGN)")]) == config_identity(rows[("table2_cdg", "CloDS")])
-    assert config_identity(rows[("ablation_backbone", "CloDS (BSMS)")]) != config_identity(rows[("table2_cdg", "CloDS")])
-    assert rows[("table2_cdg", "DHMP")].sim == "dhmp"
+    assert config_identity(rows[("ablation_backbone", "CloDS (BSMS, MGN cloth frame)")]) != config_identity(rows[("table2_cdg", "CloDS")])
+    assert rows[("table2_cdg", "DHMP (MGN cloth frame)")].sim == "dhmp"
 
 
 def test_lighting_table_differs_from_table2_clods_only_in_the_scene() -> None:

@@ -15,11 +15,12 @@ from tests.plugins.simulators.graph_fixtures import jittered_mesh, make_inputs, 
 from tests.plugins.simulators.structure_fixtures import CI_WIDTHS, PINNED, assert_close, fixed_evaluation, mlp_parameters, shared_parameters
 
 LATENT = 16
+AUTHORS_NETWORK = {"position_scale": "raw", "fibre_norms": "joint"}  # the authors' Eulerian GMP on the positions it is given
 
 
 def processor(levels: int = 2, edge_sets: tuple[str, ...] = ("mesh",), seed: int = 0) -> BsmsProcessor:
     torch.manual_seed(seed)
-    return BsmsProcessor(LATENT, 1, list(edge_sets), BsmsConfig(latent_size=LATENT, levels=levels))
+    return BsmsProcessor(LATENT, 1, list(edge_sets), BsmsConfig(latent_size=LATENT, levels=levels, **AUTHORS_NETWORK))
 
 
 def test_shape_and_finite_gradients_for_every_parameter():
@@ -107,7 +108,7 @@ def test_bad_config_raises(field, value):
 
 def test_structure_at_ci_widths_is_pinned():
     """Parameter count (by formula: 2 levels + 1 GMPs, no edge encoder) and one fixed-seed float64 output (committed)."""
-    count, value = fixed_evaluation(build_bsms(BsmsConfig(**CI_WIDTHS, levels=3), SimpleNamespace(scene=PINNED)))
+    count, value = fixed_evaluation(build_bsms(BsmsConfig(**CI_WIDTHS, levels=3, **AUTHORS_NETWORK), SimpleNamespace(scene=PINNED)))
     gmp = mlp_parameters(6 + 2 * 64, 64, 2, 64, False) + mlp_parameters(2 * 64, 64, 2, 64, False)  # fibre (5 + norm), no LN affine
     assert count == shared_parameters(64, 2, encoded_edges=False) + (2 * 3 + 1) * gmp == 252547
     assert_close(value, 38.7205266535034)

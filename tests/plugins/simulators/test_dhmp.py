@@ -36,7 +36,7 @@ PINNED = SimpleNamespace(name="test-pinned", has_obstacles=False, has_handles=Tr
 
 def processor(levels: int = 3, fixed: int = 1, edge_sets: tuple[str, ...] = ("mesh",), seed: int = 0) -> DhmpProcessor:
     torch.manual_seed(seed)
-    return DhmpProcessor(LATENT, 1, list(edge_sets), DhmpConfig(latent_size=LATENT, levels=levels, fixed_levels=fixed))
+    return DhmpProcessor(LATENT, 1, list(edge_sets), DhmpConfig(latent_size=LATENT, levels=levels, fixed_levels=fixed, position_scale="raw"))
 
 
 # --- blocks against brute force -----------------------------------------------------------------
@@ -174,7 +174,7 @@ def test_the_hierarchy_is_selected_per_input():
 def test_a_keep_ratio_fixes_the_level_sizes_but_not_the_nodes():
     s, r, pos = jittered_mesh(10, 6, seed=1)  # 60 nodes -> 29 (bi-stride) -> 14 -> 7 (ratio 0.5, half to even)
     torch.manual_seed(0)
-    proc = DhmpProcessor(LATENT, 1, ["mesh"], DhmpConfig(latent_size=LATENT, levels=3, fixed_levels=1, keep_ratio=0.5)).eval()
+    proc = DhmpProcessor(LATENT, 1, ["mesh"], DhmpConfig(latent_size=LATENT, levels=3, fixed_levels=1, keep_ratio=0.5, position_scale="raw")).eval()
     chosen = set()
     for seed in range(4):
         nodes, inputs = make_inputs(s, r, pos, LATENT, seed=seed, key="a")
@@ -225,11 +225,11 @@ def test_structure_at_ci_widths_is_pinned():
         n = mlp_parameters(7 + 128, 64, 2, 64, False) + mlp_parameters(64, 64, 2, 1, False) + mlp_parameters(128, 64, 2, 64, False)
         return n + (mlp_parameters(128, 64, 2, 2, False) if scores else 0)
 
-    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0), SimpleNamespace(scene=PINNED)))
+    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, position_scale="raw"), SimpleNamespace(scene=PINNED)))
     assert count == shared_parameters(64, 2, encoded_edges=False) + block(True) + 2 * block(False) == 156296
     assert_close(value, -39.186881796086055)
-    assert_close(fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, keep_ratio=0.5), SimpleNamespace(scene=PINNED)))[1], 12.5817759494111)
-    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=4, fixed_levels=2), SimpleNamespace(scene=PINNED)))
+    assert_close(fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=1, fixed_levels=0, keep_ratio=0.5, position_scale="raw"), SimpleNamespace(scene=PINNED)))[1], 12.5817759494111)
+    count, value = fixed_evaluation(build_dhmp(DhmpConfig(**CI_WIDTHS, levels=4, fixed_levels=2, position_scale="raw"), SimpleNamespace(scene=PINNED)))
     assert count == shared_parameters(64, 2, encoded_edges=False) + 2 * block(True) + 7 * block(False) == 420752
     assert_close(value, -28.750969251279837)
 

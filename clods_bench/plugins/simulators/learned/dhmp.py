@@ -43,6 +43,7 @@ from clods_bench.plugins.simulators.learned.dhmp_ops import (
 )
 from clods_bench.plugins.simulators.learned.gmp import ContactGmp, WeightedGmp, fibre
 from clods_bench.plugins.simulators.learned.hierarchy import _adjacency
+from clods_bench.plugins.simulators.learned.normalizer import Normalizer
 from clods_bench.plugins.simulators.learned.processor import ProcessorInputs
 from clods_bench.plugins.simulators.learned.simulator import LearnedSimulator
 from clods_bench.plugins.simulators.learned.unet_configs import DhmpConfig
@@ -65,6 +66,9 @@ class DhmpProcessor(nn.Module):
         if "mesh" not in names:
             raise ClodsError(f"edge sets {names} lack 'mesh'", where="DhmpProcessor", hint="the hierarchy is built from mesh edges")
         self.contact = ContactGmp(latent, hidden_layers, FIBRE_SIZE, CONTACT_FIBRE_SIZE) if "world" in names else None
+        self.normalized_positions = cfg.position_scale == "dataset"  # read by LearnedModel
+        # 'level': running statistics of each level's fibres (down, bottom and up at a level share them)
+        self.fibre_normalizers = nn.ModuleList(Normalizer(FIBRE_SIZE) for _ in range(cfg.levels + 1)) if cfg.position_scale == "level" else None
 
         def block(scores: bool = False) -> WeightedGmp:
             return WeightedGmp(latent, hidden_layers, FIBRE_SIZE, scores)
@@ -104,6 +108,13 @@ class DhmpProcessor(nn.Module):
             keep = top_fraction(margin, component, self.config.keep_ratio)
         return select_nodes(keep, soft, component)
 
+    def _fibre(self, pos: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor, level: int, inputs: ProcessorInputs) -> torch.Tensor:
+        """The fibres of a level's edges, through that level's normaliser under position_scale 'level'."""
+        fib = fibre(pos, senders, receivers, FIBRE_GROUPS)
+        if self.fibre_normalizers is not None:
+            fib = self.fibre_normalizers[level](fib, inputs.accumulate)
+        return fib
+
     def forward(self, nodes: torch.Tensor, inputs: ProcessorInputs) -> torch.Tensor:
         """Updated node latents (V,L)."""
         cfg = self.config
@@ -123,15 +134,15 @@ class DhmpProcessor(nn.Module):
         fine = torch.arange(n0, device=nodes.device)
         self.last_kept = [fine]
         s, r = mesh.senders, mesh.receivers
-        skips, positions, loops, weights, kept_at = [], [], [], [], []
+        skips, fibres, loops, weights, kept_at = [], [], [], [], []
         for level in range(cfg.levels):
             n = x.shape[0]
             sl, rl = with_self_loops(s, r, n)
-            fib = fibre(pos, sl, rl, FIBRE_GROUPS)
+            fib = self._fibre(pos, sl, rl, level, inputs)
             for _ in range(2 if level == 0 else 1):  # the code runs the mesh level's block twice on cloth
                 x, w, scores = self.down[level](x, fib, sl, rl)
             skips.append(x)
-            positions.append(pos)
+            fibres.append(fib)  # the way up reads the same positions and edges
             loops.append((sl, rl))
             weights.append(w)
             x = reduce(x, sl, rl, w)
@@ -150,7 +161,7 @@ class DhmpProcessor(nn.Module):
             component, fine = component.index_select(0, kept), fine.index_select(0, kept)
             self.last_kept.append(fine)
         if cfg.bottom_blocks:
-            fib = fibre(pos, s, r, FIBRE_GROUPS)
+            fib = self._fibre(pos, s, r, cfg.levels, inputs)
             for i, block in enumerate(self.bottom):
                 for _ in range(2 if i == 0 else 1):  # the first bottom block runs twice, as the code does on cloth
                     x = block(x, fib, s, r)[0]
@@ -158,9 +169,8 @@ class DhmpProcessor(nn.Module):
             sl, rl = loops[level]
             coarse = skips[level].new_zeros(skips[level].shape).index_copy(0, kept_at[level], x)
             x = expand(coarse, sl, rl, weights[level])
-            fib = fibre(positions[level], sl, rl, FIBRE_GROUPS)
             for _ in range(2 if level == 0 else 1):
-                x = self.up[level](x, fib, sl, rl)[0]
+                x = self.up[level](x, fibres[level], sl, rl)[0]
             x = x + skips[level]
         return x
 

@@ -26,7 +26,10 @@ class ProcessorInputs:
     `topology_key` identifies the (possibly batched) static mesh topology, so a processor can
     cache per-topology structures such as a bi-stride hierarchy. `encode_edges(name, raw)` normalises and encodes
     raw features (E, width) of edge set `name` with the model's own normaliser and encoder (HCMT encodes every
-    level's edges so); None where the model offers none.
+    level's edges so); None where the model offers none. `positions` (V, 2 + 3): rest then world position of every
+    node, each coordinate normalised by the model's position normaliser, for a processor that asks for it with a
+    true class attribute `normalized_positions` (None otherwise). `accumulate`: whether this call may update
+    normalisers (a processor's own statistics accumulate only then).
     """
 
     edge_sets: dict[str, EdgeSet]
@@ -34,6 +37,8 @@ class ProcessorInputs:
     mesh_pos: torch.Tensor
     topology_key: str
     encode_edges: Callable[[str, torch.Tensor], torch.Tensor] | None = None
+    positions: torch.Tensor | None = None
+    accumulate: bool = False
 
 
 class Processor(Protocol):

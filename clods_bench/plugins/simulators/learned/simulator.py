@@ -75,7 +75,8 @@ class LearnedSimulator:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(seed))
             processor = self.processor_factory(cfg.latent_size, cfg.hidden_layers, list(self.spec.edge_widths))
-            return LearnedModel(self.spec, processor, cfg.latent_size, cfg.hidden_layers, cfg.normalizer_accumulations)
+            output = str(getattr(cfg, "output", "acceleration"))
+            return LearnedModel(self.spec, processor, cfg.latent_size, cfg.hidden_layers, cfg.normalizer_accumulations, output)
 
     def _check_training_data(self, train: Sequence[Trajectory]) -> float:
         """Validate the trajectories; return their common dt."""

@@ -112,18 +112,27 @@ class Trainer:
         model.node_normalizer(nodes, accumulate=True)
         for name, es in sets.items():
             model.edge_normalizers[name](es.features, accumulate=True)
-        model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
+        model.output_normalizer(self._target_output(batch, noise), accumulate=True)
+        model.normalized_positions(batch.topo, cur, accumulate=True)
 
     def _target_acceleration(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
         """a* = (x_{t+1} + (1 - gamma) n) - 2 (x_t + n) + x_{t-1}."""
         f, n = batch.frames[:3].double(), noise.double()  # float64: x ~ 1 m, a ~ 1e-4 m cancels in float32
         return ((f[2] + (1.0 - self.config.noise_gamma) * n) - 2.0 * (f[1] + n) + f[0]).float()
 
+    def _target_output(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
+        """The decoder's target before normalisation: a* (above), or for a velocity output
+        v* = (x_{t+1} + (1 - gamma) n) - (x_t + n)."""
+        if self.model.output == "acceleration":
+            return self._target_acceleration(batch, noise)
+        f, n = batch.frames[:3].double(), noise.double()
+        return ((f[2] + (1.0 - self.config.noise_gamma) * n) - (f[1] + n)).float()
+
     def one_step_loss(self, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
         """MGN loss: mean over NORMAL nodes of the squared error of the normalised acceleration."""
         f, topo = batch.frames, batch.topo
         out = self.model(topo, batch.key, f[1] + noise, f[0], accumulate=True)
-        target = self.model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
+        target = self.model.output_normalizer(self._target_output(batch, noise), accumulate=True)
         return ((target - out) ** 2).sum(dim=1)[topo.normal].mean()
 
     def rollout_loss(self, batch: Batch, noise: torch.Tensor, steps: int | None = None) -> torch.Tensor:
@@ -132,13 +141,13 @@ class Trainer:
         topo, model = batch.topo, self.model
         f, n = batch.frames.double(), noise.double()  # integrate and compare in float64 (see _target_acceleration)
         prev, cur = f[0], f[1] + n
-        model.output_normalizer(self._target_acceleration(batch, noise), accumulate=True)
+        model.output_normalizer(self._target_output(batch, noise), accumulate=True)
         scale = model.output_normalizer.std.double()
         total = f.new_zeros(())
         steps = f.shape[0] - 2 if steps is None else min(int(steps), f.shape[0] - 2)
         for k in range(1, steps + 1):
             out = model(topo, batch.key, cur.float(), prev.float(), accumulate=(k == 1))
-            nxt = integrate(cur, prev, model.acceleration(out).double(), topo.normal, f[k + 1])
+            nxt = integrate(cur, prev, model.acceleration(out, cur, prev).double(), topo.normal, f[k + 1])
             target = f[k + 1] + (1.0 - self.config.noise_gamma) * n if k == 1 else f[k + 1]
             total = total + (((nxt - target) / scale) ** 2).sum(dim=1)[topo.normal].mean()
             prev, cur = cur, nxt
