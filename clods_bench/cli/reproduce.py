@@ -124,7 +124,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 def _check_claims(args: argparse.Namespace, runs: Sequence[tuple[Any, RunConfig]]) -> None:
     """`--dry-run`: the claims file (`--claims`, else docs/claims.yaml where it exists) against the whole plan's rows."""
-    from clods_bench.docsgen.claims import check_claims_against_plan
+    from clods_bench.benchmark.outputs.claims_check import check_claims_against_plan
 
     path = args.claims or (Path("docs/claims.yaml") if Path("docs/claims.yaml").is_file() else None)
     if path is None or args.only:

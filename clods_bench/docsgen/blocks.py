@@ -12,12 +12,24 @@ from typing import Callable
 
 from clods_bench.docsgen.claims import evaluate_claims
 from clods_bench.docsgen.claims_page import claims_body, counts_table, summary_table
-from clods_bench.docsgen.sources import CsvTable
+from clods_bench.benchmark.outputs.table_sources import CsvTable
 from clods_bench.errors import ClodsError
 
 BLOCK = re.compile(r"(<!-- generated:(?P<name>[a-z0-9_-]+)[^>]*-->\n)(?P<body>.*?)(<!-- end generated:(?P=name) -->)", re.S)
 CDG_AVG = ("viewed/interp/avg/mean", "viewed/extrap/avg/mean", "unviewed/interp/avg/mean", "unviewed/extrap/avg/mean")
-HEADLINE_ROWS = ("Physics", "MGN", "MGN*", "HCMT", "CloDS*", "CloDS**", "CloDS")
+HEADLINE_ROWS = ("Physics", "Frozen", "MGN", "MGN*", ("simulator", "bsms"), ("simulator", "hcmt"), ("simulator", "dhmp"), "CloDS*",
+                 "CloDS**", "CloDS")  # fmt: skip
+"""Table 2's rows in the README; a (kind, plugin) pair stands for that plugin's own row label (`PluginSpec.row_label`)."""
+SMALL_TABLE2 = Path("results/small-partial/2026-12-07-table2-rerun/cdg_flag_small.csv")
+"""`small`'s Table 2 on the current data generator and deterministic mode; rows it lacks come from results/small-partial."""
+
+
+def headline_rows() -> list[str]:
+    """HEADLINE_ROWS with every plugin's row label read from its registration."""
+    from clods_bench.benchmark.core.registry import default_registry
+
+    registry = default_registry()
+    return [row if isinstance(row, str) else registry.get(*row).row_label() for row in HEADLINE_ROWS]
 
 
 def presets_table(root: Path) -> str:
@@ -40,28 +52,37 @@ def presets_table(root: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _cdg_rows(csv: Path, label: str, aliases: dict[str, str]) -> list[str]:
+def _cdg_rows(csv: Path, label: str, aliases: dict[str, str], skip: set[str] = frozenset()) -> tuple[list[str], set[str]]:
+    """The headline rows of one Table 2 CSV (those not in `skip`), and which rows it gave."""
     table = CsvTable([csv], aliases=aliases)
-    out = []
-    for row in HEADLINE_ROWS:
-        if row in table.rows:
+    out, given = [], set()
+    for row in headline_rows():
+        if row in table.rows and row not in skip:
             values = " | ".join(f"{table.value(row, c):.4f}" for c in CDG_AVG)
             out.append(f"| {row} | {label} | {table.seeds([row])} | {values} |")
-    return out
+            given.add(row)
+    return out, given
 
 
 def headline_results(root: Path) -> str:
     """Table 2's Avg. columns of the main rows at `ci` and `small`, read from the committed CSV files."""
-    from clods_bench.docsgen.sources import load_yaml
+    from clods_bench.benchmark.outputs.table_sources import load_yaml
 
     sizes = load_yaml(root / "docs/claims.yaml")["sizes"]
     small_aliases = (sizes["small"].get("aliases") or {}).get("table2_cdg", {})
-    lines = ["Table 2 (cloth dynamics grounding), rollout RMSE in metres, Avg. columns (every row and column: "
-             "[`ci`](results/ci/table2_cdg.md), [`small`](results/small-partial/cdg_flag_small.md)):", "",
+    current = root / SMALL_TABLE2
+    links = ([f"[`small`]({SMALL_TABLE2.with_suffix('.md').as_posix()})"] if current.is_file() else []) + [
+        "[`small`, earlier data](results/small-partial/cdg_flag_small.md)", "[`ci`](results/ci/table2_cdg.md)"]
+    lines = ["Table 2 (cloth dynamics grounding), rollout RMSE in metres, Avg. columns; the evidence first, the regression "
+             f"fixture last (every row and column: {', '.join(links)}):", "",
              "| method | preset (kind) | seeds | viewed interp. | viewed extrap. | unviewed interp. | unviewed extrap. |",
              "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
-    lines += _cdg_rows(root / "results/ci/table2_cdg.csv", "`ci` (regression fixture)", {})
-    lines += _cdg_rows(root / "results/small-partial/cdg_flag_small.csv", "`small` (evidence, in part)", small_aliases)
+    given: set[str] = set()
+    if current.is_file():
+        rows, given = _cdg_rows(current, "`small` (evidence, in part)", {})
+        lines += rows
+    lines += _cdg_rows(root / "results/small-partial/cdg_flag_small.csv", "`small`, earlier generator (evidence, in part)", small_aliases, given)[0]
+    lines += _cdg_rows(root / "results/ci/table2_cdg.csv", "`ci` (regression fixture)", {})[0]
     return "\n".join(lines) + "\n"
 
 

@@ -6,9 +6,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from clods_bench.docsgen.claim_rules import Columns, MissingRows, Verdict, evaluate, rule_columns
-from clods_bench.docsgen.sources import CsvTable, as_list, load_yaml, where
-from clods_bench.docsgen.sources import field as required
+from clods_bench.benchmark.outputs.claim_rules import Columns, MissingRows, Verdict, evaluate, rule_columns
+from clods_bench.benchmark.outputs.claims_check import column_groups
+from clods_bench.benchmark.outputs.table_sources import CsvTable, as_list, load_yaml, where
+from clods_bench.benchmark.outputs.table_sources import field as required
 from clods_bench.errors import ClodsError
 
 CLAIMS_FILE = Path("docs/claims.yaml")
@@ -52,18 +53,6 @@ class Claim:
     paper: str
     rule_text: str
     outcomes: list[Outcome]
-
-
-def _columns(spec: dict[str, Any], path: Path) -> dict[str, Columns]:
-    out = {}
-    for name, entry in spec.items():
-        if name.startswith("__"):
-            continue
-        better = required(entry, "better", path)
-        if better not in ("lower", "higher"):
-            raise ClodsError(f"columns '{name}': better must be lower or higher, got {better!r}", where=where(path, entry))
-        out[name] = Columns(name, required(entry, "label", path), tuple(required(entry, "columns", path, list)), better == "higher")
-    return out
 
 
 def _fmt(x: float) -> str:
@@ -146,7 +135,7 @@ def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
     doc = load_yaml(path)
     if not isinstance(doc, dict):
         raise ClodsError("expected a mapping with sizes, columns and claims", where=str(path))
-    sizes, columns = required(doc, "sizes", path, dict), _columns(required(doc, "columns", path, dict), path)
+    sizes, columns = required(doc, "sizes", path, dict), column_groups(required(doc, "columns", path, dict), path)
     out = []
     for entry in required(doc, "claims", path, list):
         rule = required(entry, "rule", path, dict)
@@ -188,37 +177,3 @@ def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
                          required(entry, "where", path), required(entry, "paper", path), text, outcomes))  # fmt: skip
     return out
 
-
-def rule_rows(rule: dict[str, Any]) -> list[str]:
-    """Every row label a rule reads."""
-    if "all" in rule:
-        return [r for sub in rule["all"] for r in rule_rows(sub)]
-    out: list[str] = []
-    for kind, spec in rule.items():
-        if kind.startswith("__") or not isinstance(spec, dict):
-            continue
-        for key in ("row", "of", "than", "rows"):
-            out += [str(v) for v in as_list(spec.get(key, []))]
-    return out
-
-
-def check_claims_against_plan(path: Path, labels: dict[str, set[str]]) -> None:
-    """Every claim on a plan table names a table of the plan, rows the plan makes in it and column groups the file
-    defines; else one ClodsError naming the claim's line. `labels`: table id -> the row labels the plan gives it."""
-    doc = load_yaml(path)
-    columns = _columns(required(doc, "columns", path, dict), path)
-    for entry in required(doc, "claims", path, list):
-        if "sources" in entry:
-            continue
-        table = required(entry, "table", path)
-        if table not in labels:
-            raise ClodsError(f"claim '{entry.get('id')}': table '{table}' is not a table of the plan (tables: {', '.join(labels)})",
-                             where=where(path, entry))  # fmt: skip
-        rule = required(entry, "rule", path, dict)
-        unknown = [c for c in rule_columns(rule) if c not in columns]
-        if unknown:
-            raise ClodsError(f"claim '{entry.get('id')}': unknown column group {', '.join(unknown)}; known: {', '.join(columns)}", where=where(path, entry))
-        missing = [r for r in dict.fromkeys(rule_rows(rule)) if r not in labels[table]]
-        if missing:
-            raise ClodsError(f"claim '{entry.get('id')}': the plan makes no row {', '.join(repr(m) for m in missing)} in table '{table}'",
-                             where=where(path, entry), hint=f"its rows: {', '.join(sorted(labels[table]))}")  # fmt: skip

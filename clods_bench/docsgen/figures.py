@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from clods_bench.docsgen.sources import field, where
+from clods_bench.benchmark.outputs.table_sources import field, where
 from clods_bench.errors import ClodsError
 
 KINDS = ("error_vs_time", "training_curves", "video_grids")

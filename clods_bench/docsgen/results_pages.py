@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 from clods_bench.docsgen.figures import Plot, plot_entry, rendered
 from clods_bench.docsgen.glance import glance
-from clods_bench.docsgen.sources import field, load_yaml, where
+from clods_bench.benchmark.outputs.table_sources import field, load_yaml, where
 from clods_bench.errors import ClodsError
 
 PLAN_FILE = Path("clods_bench/benchmark/reproduction/plans/reproduce.yaml")

@@ -60,7 +60,7 @@ def test_run_and_tables_end_to_end(tmp_path, monkeypatch, capsys) -> None:
     assert main(["run", "cdg", "--sim", "frozen", *args, "--set", "runs_dir=runs2"]) == 0
     capsys.readouterr()
     assert main(["tables", "--runs", "runs", "runs2", "--out", "tables2"]) == 0  # two folders, one table
-    assert [r.split(",")[0] for r in (Path("tables2") / "cdg_flag_ci.csv").read_text().splitlines()[1:]] == ["constvel", "frozen"]
+    assert [r.split(",")[0] for r in (Path("tables2") / "cdg_flag_ci.csv").read_text().splitlines()[1:]] == ["Const. velocity", "Frozen"]
     assert main(["tables", "--runs", "runs", "--out", "tables", "--task", "nvs"]) == 2  # no nvs records: a clear error
     assert "no 'nvs' run records" in capsys.readouterr().err
     assert main(["report", "--runs", "runs", "--out", "report"]) == 0

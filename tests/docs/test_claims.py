@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from clods_bench.docsgen.claim_rules import Columns, MissingRows, evaluate
+from clods_bench.benchmark.outputs.claim_rules import Columns, MissingRows, evaluate
 from clods_bench.docsgen.claims import FAILS, HOLDS, NOISE, NOT_RUN, evaluate_claims
 from clods_bench.docsgen.claims_page import counts, summary_table
-from clods_bench.docsgen.sources import CsvTable
+from clods_bench.benchmark.outputs.table_sources import CsvTable
 from clods_bench.errors import ClodsError
 from tests.docs.pages import ROOT
 

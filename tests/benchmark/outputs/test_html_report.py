@@ -43,7 +43,7 @@ def test_report_embeds_tables_plots_grids_and_videos(tiny_root: Path, tmp_path: 
     assert out / "index.html" in paths and (out / "error_vs_time_flag_ci.png").is_file() and (out / "rollout_rmse_flag_ci.csv").is_file()
     page = (out / "index.html").read_text()
     assert page.startswith("<!DOCTYPE html>") and "http" not in page.split("<body>")[1].split("Records under")[0]
-    for label in ("constvel", "frozen", "constant"):
+    for label in ("Const. velocity", "Frozen", "constant"):
         assert f">{label}</th>" in page
     assert "PSNR (dB)" in page and "Unviewed" in page  # the NVS and CDG layouts
     pngs = _embedded(page, "image/png")
@@ -57,7 +57,7 @@ def test_report_embeds_tables_plots_grids_and_videos(tiny_root: Path, tmp_path: 
     assert [v.split("_")[0] for v in videos] == ["cdg", "nvs"] and len(list((out / "watch").glob("*_3d.html"))) == 1
     assert "<h2 id='watch'>Watch: rollouts and predicted frames</h2>" in page and "Watch: 2 videos, 1 3D view</a>" in page
     view = next((out / "watch").glob("*_3d.html"))
-    assert f"<a href='watch/{view.name}'>open the 3D view</a>" in page and "constvel (seed 0), frozen (seed 0)" in page
+    assert f"<a href='watch/{view.name}'>open the 3D view</a>" in page and "Const. velocity (seed 0), Frozen (seed 0)" in page
     sample = load_rollout_sample(cdg_dirs[0] / "seed_0" / ROLLOUT_FILE)
     assert len(read_view3d_figure(view)["frames"]) == sample.num_frames == len(read_animation(out / "watch" / videos[0]))
     # through the CLI, with an NVS-only runs folder (no CDG plots to make)

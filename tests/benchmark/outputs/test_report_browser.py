@@ -58,7 +58,7 @@ def test_3d_view_of_real_runs_draws_their_frames_and_methods(tiny_root: Path, tm
     fig = read_view3d_figure(page)
     sample = load_rollout_sample(dirs[0] / "seed_0" / ROLLOUT_FILE)
     assert [f["name"] for f in fig["frames"]] == [str(t) for t in range(sample.num_frames)]
-    assert [t["name"] for t in fig["data"] if t["type"] == "mesh3d"] == ["ground truth", "constvel (seed 0)", "frozen (seed 0)"]
+    assert [t["name"] for t in fig["data"] if t["type"] == "mesh3d"] == ["ground truth", "Const. velocity (seed 0)", "Frozen (seed 0)"]
     shot = _screenshot(page, tmp_path, "view")
     area = _plot_area(shot)
     assert len(np.unique(area.reshape(-1, 3), axis=0)) > 200, "the scene looks blank"

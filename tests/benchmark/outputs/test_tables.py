@@ -28,9 +28,9 @@ def test_tables_from_two_runs(tiny_root: Path, tmp_path: Path) -> None:
     md = next(p for p in paths if p.suffix == ".md").read_text()
     assert "Viewed / Interpolation / d(t=8)" in md and "Unviewed / Extrapolation / d(t=11)" in md
     csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
-    assert list(csv["method"]) == ["constvel", "frozen"]
-    for sim in ("constvel", "frozen"):
-        row = csv[csv["method"] == sim].iloc[0]
+    assert list(csv["method"]) == ["Const. velocity", "Frozen"]  # each plugin's own row label
+    for sim, label in (("constvel", "Const. velocity"), ("frozen", "Frozen")):
+        row = csv[csv["method"] == label].iloc[0]
         assert row["unviewed/extrap/d_avg/mean"] == pytest.approx(recs[sim]["metrics"]["unviewed/extrap/d_avg"]["mean"])
     tex = next(p for p in paths if p.suffix == ".tex").read_text()
     assert "\\begin{table}" in tex and "Viewed" in tex
@@ -42,8 +42,8 @@ def test_tables_from_two_runs_folders(tiny_root: Path, tmp_path: Path) -> None:
     two = run_task(tiny_config(tiny_root, f"runs_dir={tmp_path / 'b'}", sim="frozen"), default_registry())
     paths = write_tables([tmp_path / "a", tmp_path / "b"], tmp_path / "tables")
     csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
-    assert list(csv["method"]) == ["constvel", "frozen"]
-    for rdir, method in ((one, "constvel"), (two, "frozen")):
+    assert list(csv["method"]) == ["Const. velocity", "Frozen"]
+    for rdir, method in ((one, "Const. velocity"), (two, "Frozen")):
         rec = json.loads((rdir / RECORD_FILE).read_text())
         row = csv[csv["method"] == method].iloc[0]
         assert row["viewed/interp/d_avg/mean"] == rec["metrics"]["viewed/interp/d_avg"]["mean"]

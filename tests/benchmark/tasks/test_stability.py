@@ -101,7 +101,7 @@ def test_baselines_stable_and_labelled_in_table(tiny_root: Path, tmp_path: Path,
     _run(tiny_root, runs, registry, "nan-at", "label=exploder")
     paths = write_tables(runs, tmp_path / "tables", task="stability")
     csv = pd.read_csv(next(p for p in paths if p.suffix == ".csv"))
-    assert list(csv["method"]) == ["constvel", "exploder", "frozen"]
+    assert sorted(csv["method"]) == ["Const. velocity", "Frozen", "exploder"]  # plugin row labels, and the one given
     md = next(p for p in paths if p.suffix == ".md").read_text()
     assert "stable" in md and f"frame {K} (1/1 rollouts): non-finite" in md
     # independent numbers: the long ground truth re-simulated here, the constant-velocity RMSE longhand
@@ -115,7 +115,7 @@ def test_baselines_stable_and_labelled_in_table(tiny_root: Path, tmp_path: Path,
     for t in range(2, frames):
         pred[t, free] = 2 * pred[t - 1, free] - pred[t - 2, free]
     rmse = np.mean([np.sqrt(np.mean((pred[t] - gt[t]) ** 2)) for t in range(2, frames)])
-    row = csv[csv["method"] == "constvel"].iloc[0]
+    row = csv[csv["method"] == "Const. velocity"].iloc[0]
     assert row["rmse/mean"] == pytest.approx(rmse, rel=1e-4) == pytest.approx(recs["constvel"]["metrics"]["rmse"]["mean"])
     assert row["horizon_frames"] == frames
     # the stability verdict, longhand: first frame >= 2 whose largest |l / l_rest - 1| over the
@@ -130,7 +130,7 @@ def test_baselines_stable_and_labelled_in_table(tiny_root: Path, tmp_path: Path,
         assert row["diverged_fraction"] == 1 and row["first_divergence"] == over[0]
     else:
         assert row["diverged_fraction"] == 0
-    assert csv[csv["method"] == "frozen"].iloc[0]["diverged_fraction"] == 0  # the frozen flag never stretches
+    assert csv[csv["method"] == "Frozen"].iloc[0]["diverged_fraction"] == 0  # the frozen flag never stretches
 
 
 def test_bad_task_config_is_a_clear_error(tiny_root: Path, tmp_path: Path, registry: Registry) -> None:

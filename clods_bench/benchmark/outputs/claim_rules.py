@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from clods_bench.docsgen.sources import CsvTable, as_list
+from clods_bench.benchmark.outputs.table_sources import CsvTable, as_list
 
 
 @dataclass(frozen=True)
