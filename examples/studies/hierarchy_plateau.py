@@ -21,6 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 COLUMNS = ("viewed/interp/avg", "viewed/extrap/avg", "unviewed/interp/avg", "unviewed/extrap/avg", "max_strain")
@@ -50,23 +51,32 @@ def summarise(variant: dict, folder: Path, seed: int) -> tuple[dict, list[float]
     return row, curve
 
 
-def plot(curves: dict[str, list[float]], path: Path, title: str) -> None:
-    """Training loss of every variant against the fraction of training done."""
+def plot(curves: dict[str, list[float]], sims: dict[str, str], path: Path, title: str) -> None:
+    """Training loss (a moving average of 9 points) of every variant against the fraction of training done: one
+    panel per simulator, MGN's variants drawn in every panel as the reference."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 5), dpi=110)
-    for name, curve in curves.items():
-        if curve:
-            ax.plot([(i + 1) / len(curve) for i in range(len(curve))], curve, label=name, linewidth=1.2)
-    ax.set_yscale("log")
-    ax.set_xlabel("fraction of the training steps")
-    ax.set_ylabel("training loss (normalised, log scale)")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, ncol=2)
+    panels = [s for s in dict.fromkeys(sims.values()) if s not in ("mgn", "frozen")] or ["mgn"]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.6), dpi=110, squeeze=False, sharey=True)
+    for ax, sim in zip(axes[0], panels):
+        ax.set_prop_cycle(color=plt.cm.tab20.colors)
+        for name, curve in curves.items():
+            if not curve or sims[name] not in (sim, "mgn"):
+                continue
+            smooth = np.convolve(curve, np.ones(9) / 9, mode="valid")
+            x = (np.arange(len(smooth)) + 5) / len(curve)
+            style = {"color": "black", "linestyle": "--"} if sims[name] == "mgn" else {}
+            ax.plot(x, smooth, label=name, linewidth=1.3, **style)
+        ax.set_yscale("log")
+        ax.set_xlabel("fraction of the training steps")
+        ax.set_title(sim.upper())
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right", ncol=2 if len(ax.lines) > 8 else 1)
+    axes[0][0].set_ylabel("training loss (normalised, log scale)")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path)
 
@@ -91,7 +101,8 @@ def main() -> None:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    plot(curves, args.out / "loss_curves.png", f"Training loss, preset {args.preset}, seed {args.seed}")
+    sims = {v["name"]: v["sim"] for v in variants}
+    plot(curves, sims, args.out / "loss_curves.png", f"Training loss, preset {args.preset}, seed {args.seed} (a velocity output's loss is in other units)")
     for row in rows:
         print(*(row[k] for k in ("variant", *COLUMNS, "final_loss")), sep="\t")
 
