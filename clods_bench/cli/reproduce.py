@@ -46,7 +46,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true", help="check the plan and list its runs, run nothing")
     p.add_argument("--claims", type=Path, metavar="FILE",
                    help="with --dry-run: check that the claims file's tables, rows and columns exist in the plan (default: "
-                        "docs/claims.yaml where it exists)")  # fmt: skip
+                        "docs/claims.yaml where it exists, for the built-in plan)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
     p.set_defaults(func=cmd_reproduce)
 
@@ -126,7 +126,8 @@ def _check_claims(args: argparse.Namespace, runs: Sequence[tuple[Any, RunConfig]
     """`--dry-run`: the claims file (`--claims`, else docs/claims.yaml where it exists) against the whole plan's rows."""
     from clods_bench.benchmark.outputs.claims_check import check_claims_against_plan
 
-    path = args.claims or (Path("docs/claims.yaml") if Path("docs/claims.yaml").is_file() else None)
+    default = Path("docs/claims.yaml")
+    path = args.claims or (default if args.plan is None and default.is_file() else None)  # the built-in plan's claims
     if path is None or args.only:
         return  # `--only` lists part of the plan: a claim on another table is not wrong
     if not path.is_file():

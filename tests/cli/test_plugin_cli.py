@@ -90,7 +90,7 @@ def test_deprecated_scene_runs_through_data_and_cdg(fresh: Path, tmp_path: Path,
     sets = _sets(*TINY, "data.resolution=[5,3]", f"data.root={tmp_path / 'data'}", f"runs_dir={tmp_path / 'runs'}")
     assert main(["run", "cdg", "--sim", "constvel", "--scene", "narrow-flag", *sets]) == 0
     assert "deprecated: plugin deprecated-scene 0.1.0" in capsys.readouterr().err
-    (record,) = (tmp_path / "runs" / "cdg" / "constvel").iterdir()
+    (record,) = (tmp_path / "runs" / "cdg" / "Const._velocity").iterdir()
     assert record.name.startswith("narrow-flag-")
 
 

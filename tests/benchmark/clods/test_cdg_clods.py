@@ -36,7 +36,7 @@ def test_constvel_from_video_matches_mesh_supervised_rollouts(tiny_root: Path, t
     video = run_task(tiny_config(tiny_root, f"runs_dir={runs}", *FAST, sim="constvel", renderer="games"), default_registry())
     mesh = run_task(tiny_config(tiny_root, f"runs_dir={runs}", sim="constvel"), default_registry())
     rv, rm = _record(video), _record(mesh)
-    assert rv["label"] == "CloDS**[constvel+games]" and rm["label"] == "constvel"
+    assert rv["label"] == "CloDS**[constvel+games]" and rm["label"] == "Const. velocity"
     for key, value in rm["metrics"].items():
         assert rv["metrics"][key]["mean"] == pytest.approx(value["mean"], rel=1e-6), key
     seed = rv["per_seed"]["0"]

@@ -73,7 +73,7 @@ def test_copylast_scores_equal_the_hand_computed_ones(tiny_root: Path, tmp_path:
     assert m["psnr"]["mean"] == pytest.approx(np.mean(p), rel=1e-5)
     assert m["ssim"]["mean"] == pytest.approx(np.mean(s), rel=1e-5)
     assert m["rmse"]["mean"] == pytest.approx(np.mean(r), rel=1e-5)
-    assert "lpips" not in m and rec["label"] == "copylast"
+    assert "lpips" not in m and rec["label"] == "Copy last"
     extra = rec["per_seed"]["0"]["extra"]
     assert extra["scored_frames"] == FUTURE and extra["views"] == [2] and extra["trajectories"] == [0, 1]
     seed_dir = rdir / "seed_0"
