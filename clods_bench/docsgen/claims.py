@@ -171,7 +171,8 @@ def evaluate_claims(root: Path, claims_file: Path | None = None) -> list[Claim]:
                 raise ClodsError(f"claim '{entry.get('id')}': {exc}", where=where(path, entry)) from None
             seeds = table.seeds(verdict.rows)
             status = status_of(verdict, seeds, band)
-            noise = f"one seed: within {band.value:g} counts as noise ({band.what})" if band is not None and seeds == 1 else ""
+            banded = band is not None and seeds == 1 and any(g.name in band.groups for g in groups)
+            noise = f"one seed: within {band.value:g} counts as noise ({band.what})" if banded else ""
             outcomes.append(Outcome(label, kind, status, _ours(table, verdict, groups), seeds, present, counted, noise))
         out.append(Claim(required(entry, "id", path), required(entry, "title", path), required(entry, "claim", path),
                          required(entry, "where", path), required(entry, "paper", path), text, outcomes))  # fmt: skip

@@ -151,7 +151,8 @@ def test_the_band_applies_to_one_seed_and_its_own_columns_only(tmp_path: Path) -
     assert next(o for o in c.outcomes if o.size == "small").status == FAILS  # two seeds: the one-seed band is not theirs
     psnr = CLAIM.replace("columns: err", "columns: psnr")
     (c,) = evaluate_claims(_noisy_root(tmp_path / "psnr", "method,seeds,a/mean,p/mean\nA,1,1.0,29.95\nB,1,1.0,30\n", psnr))
-    assert next(o for o in c.outcomes if o.size == "small").status == FAILS  # PSNR has no band: 0.05 dB short fails
+    small = next(o for o in c.outcomes if o.size == "small")
+    assert small.status == FAILS and small.noise == ""  # PSNR has no band: 0.05 dB short fails, and no band is named
 
 
 def test_evidence_comes_first_and_a_claim_the_paper_scores_otherwise_is_not_counted(tmp_path: Path) -> None:
