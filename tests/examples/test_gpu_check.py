@@ -4,7 +4,6 @@ writes from its steps' logs, on a GPU's kind of output and on the CPU stand-in's
 from __future__ import annotations
 
 import datetime as dt
-import importlib.util
 import json
 import re
 import subprocess
@@ -12,18 +11,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.examples.example_module import load_example
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "examples" / "gpu" / "check.sh"
 
 
-def _load():
-    spec = importlib.util.spec_from_file_location("check_summary", ROOT / "examples" / "gpu" / "check_summary.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-cs = _load()
+cs = load_example("examples/gpu/check_summary.py")
 
 
 def test_the_results_folder_is_named_by_gpu_and_date() -> None:

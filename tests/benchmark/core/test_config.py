@@ -74,3 +74,25 @@ def test_dataset_dir_depends_on_data_not_root() -> None:
     a, b = DataConfig(root="x"), DataConfig(root="y")
     assert a.dataset_dir().name == b.dataset_dir().name
     assert DataConfig(num_train=5).dataset_dir().name != a.dataset_dir().name
+
+
+def test_a_key_for_a_plugin_that_takes_no_configuration_says_so() -> None:
+    from clods_bench.api import EmptyConfig
+    from clods_bench.typed_config import dataclass_from_dict
+
+    with pytest.raises(ClodsError) as exc:
+        dataclass_from_dict(EmptyConfig, {"noise_gamma": 1.0}, "sim_config.frozen")
+    assert "noise_gamma" in exc.value.message and "takes no keys" in str(exc.value)
+
+
+def test_ci_and_small_pin_the_stated_recipe_rule() -> None:
+    """docs/presets.md: every mesh model trains with MGN's noise gamma 0.1 at ci and small, except BSMS at small,
+    which keeps its authors' gamma (the plugin default)."""
+    from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig
+
+    for preset in ("ci", "small"):
+        sims = load_config(preset).sim_config
+        for sim in ("hcmt", "dhmp"):
+            assert sims[sim]["noise_gamma"] == 0.1, (preset, sim)
+    assert load_config("ci").sim_config["bsms"]["noise_gamma"] == 0.1
+    assert load_config("small").sim_config["bsms"]["noise_gamma"] == BsmsConfig().noise_gamma == 1.0
