@@ -68,9 +68,10 @@ def plot(rows: dict[str, dict[str, np.ndarray]], strain_threshold: float, title:
         ax.set_xlabel("frame")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    handles, labels = axes[1].get_legend_handles_labels()  # the strain panel also holds the threshold
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=9, frameon=False)
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06 * (1 + (len(labels) - 1) // 4), 1, 1))
     fig.savefig(path)
 
 
