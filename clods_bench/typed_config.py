@@ -27,10 +27,8 @@ def dataclass_from_dict(cls: type, data: dict[str, Any], where: str, prefix: str
         dotted = f"{prefix}{key}"
         if key not in names:
             best = closest(key, names)
-            if best:
-                hint = f"did you mean '{prefix}{best}'?"
-            else:
-                hint = f"known: {', '.join(names)}" if names else "this configuration takes no keys"
+            known = f"known: {', '.join(names)}" if names else "this configuration takes no keys"
+            hint = f"did you mean '{prefix}{best}'?" if best else known
             raise ClodsError(f"unknown config key '{dotted}'", where=where, hint=hint)
         kwargs[key] = coerce(hints[key], value, where, dotted)
     return cls(**kwargs)

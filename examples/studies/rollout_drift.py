@@ -6,7 +6,8 @@ records folders, and writes `drift.csv` (every row's value at a few frames) and 
 the strain threshold drawn) to the output folder. Rows are named by their record's label, or by `NAME=FOLDER`:
 
     python examples/studies/rollout_drift.py results/small-partial/2026-12-07-table2-rerun/records \
-        "BSMS, gamma 1=results/studies/hierarchy_plateau/small/records" --out results/studies/hierarchy_plateau/small
+        "BSMS (MGN cloth frame), gamma 0.1=results/studies/hierarchy_plateau/small/records/bsms_gamma0.1" \
+        --out results/studies/hierarchy_plateau/small
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ def read_rows(source: str, seed: int) -> dict[str, dict[str, np.ndarray]]:
         rows[label] = {key: np.asarray(curves[key], dtype=float) for key, _ in CURVES}
     if not rows:
         raise SystemExit(f"no stability record with seed {seed} under {folder}")
+    if name and len(list(Path(folder).glob("**/stability/*/*/record.json"))) > 1:
+        raise SystemExit(f"{source}: a named folder must hold one stability record; {folder} holds several")
     return rows
 
 

@@ -36,3 +36,5 @@ def test_rows_by_label_and_by_name_and_values_at_the_frames(tmp_path: Path) -> N
     assert lines[("Frozen", "rmse")]["frame_40"] == "0.4" and lines[("Frozen", "rmse")]["frame_80"] == ""
     with pytest.raises(SystemExit, match="no stability record with seed 0"):
         rd.read_rows(str(tmp_path / "c"), 0)
+    with pytest.raises(SystemExit, match="must hold one stability record"):  # one name for two rows: refused
+        rd.read_rows(f"both={tmp_path / 'a'}", 0)
