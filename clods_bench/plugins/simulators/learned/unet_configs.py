@@ -44,7 +44,8 @@ class BsmsConfig(HierarchicalConfig):
     (Eydcao/BSMS-GNN before its 2024 rewrite: `configs/plate`, `src/main.py`): noise 0.003 with gamma 1, Adam at 1e-4
     decayed x0.794 an epoch down to 1e-6, batch 12, 50 epochs of 1200 trajectories of 399 samples (1,995,000 steps).
     The decay is expressed per step (x0.1 every 20 % of the steps, plus a floor of 1e-6), and every sample gets noise
-    where the code noises about 2 epochs in 3. The `ci` and `small` presets train it by MGN's recipe instead.
+    where the code noises about 2 epochs in 3. The `ci` and `small` presets train it by MGN's recipe instead, but
+    `small` keeps the authors' noise gamma.
     """
 
     batch_size: int = 12
@@ -87,7 +88,8 @@ class HcmtConfig(HierarchicalConfig):
     Training defaults are the authors' (yuyudeep/hcmt `run_model.py`, impact plate, their only configuration): 2M Adam
     steps of one sample, the learning rate 1e-4 decayed by 0.1 over 1M steps (half the run) with no floor, 1000
     warm-up steps, noise 0.003 with gamma 1. Their decoder also has a stress head and predicts velocity; this one
-    predicts what `output` says (acceleration by default). The `ci` and `small` presets train it by MGN's recipe.
+    predicts what `output` says (acceleration by default). The `ci` and `small` presets train it by MGN's recipe,
+    but `small` keeps the authors' noise gamma.
     """
 
     train_steps: int = 2_000_000
