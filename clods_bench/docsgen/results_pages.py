@@ -142,7 +142,8 @@ def _picture(plot: Plot) -> Generated:
 
 
 def table_pages(root: Path) -> list[Generated]:
-    """One page per table of the plan: the `ci` table (which must exist), the `small` ones and the table's plots."""
+    """One page per table of the plan: the `small` tables (evidence) first, then the `ci` table (the regression
+    fixture, which must exist), then the table's plots."""
     path = root / SOURCES_FILE
     doc = load_yaml(path)
     ci = field(doc, "ci", path, dict)
@@ -161,21 +162,21 @@ def table_pages(root: Path) -> list[Generated]:
         lines = [f"# {t.title}", "", f"Task `{t.task}`: what it measures and how each metric is computed is on [its page](../{TASK_PAGES.get(t.task, 'tasks/index.md')}). "
                  "Tables show their Avg. columns; *All columns* opens the whole table. Click a plot to zoom.", ""]  # fmt: skip
         copies = _copies(ci_dir / t.id, "ci", t.id)
-        lines += ["## At `ci`: a regression fixture", "", *_table_body(md), "", "Made by (the whole plan, or this table alone):", ""]
-        lines += [*_code(f"{ci['made_by']}\n{ci['one_table'].format(table=t.id)}"), "", _downloads(copies), ""]
+        fixture = ["## At `ci`: a regression fixture", "", *_table_body(md), "", "Made by (the whole plan, or this table alone):", ""]
+        fixture += [*_code(f"{ci['made_by']}\n{ci['one_table'].format(table=t.id)}"), "", _downloads(copies), ""]
         rows = _manifest_rows(manifest, t.id)
         if rows:
-            lines += ["The rows in `results/ci/manifest.json` (seconds as recorded by the run that made the table; work shared through "
-                      "the caches counts where it was done first):", "", *rows, ""]  # fmt: skip
+            fixture += ["The rows in `results/ci/manifest.json` (seconds as recorded by the run that made the table; work shared through "
+                        "the caches counts where it was done first):", "", *rows, ""]  # fmt: skip
         mine = [e for e in small if e["table"] == t.id]
-        if mine:
-            lines += ["## At `small`: evidence, seed 0, in part", ""]
+        evidence = ["## At `small`: evidence, seed 0, in part", ""] if mine else []
         for e in mine:
             stem = small_dir / e["file"]
             files = _copies(stem, "small", e["file"])
-            lines += [f"### `{e['file']}`", ""] + ([e["note"], ""] if e.get("note") else [])
-            lines += [*_table_body(stem.with_suffix(".md")), "", "Made by:", "", *_code(e["made_by"]), ""] + ([_downloads(files), ""] if files else [])
+            evidence += [f"### `{e['file']}`", ""] + ([e["note"], ""] if e.get("note") else [])
+            evidence += [*_table_body(stem.with_suffix(".md")), "", "Made by:", "", *_code(e["made_by"]), ""] + ([_downloads(files), ""] if files else [])
             copies += files
+        lines += evidence + fixture  # the evidence first, the regression fixture after it (as on the claims page)
         mine_plots = [p for p in all_plots if p.table == t.id]
         if mine_plots:
             lines += ["## Plots", ""]

@@ -105,6 +105,8 @@ def test_a_missing_or_unlisted_result_file_fails_naming_where(tmp_path: Path) ->
     pages = {g.path: g for g in results_pages(root)}
     assert "| A | 2 |" in pages["results/t1.md"].text and "make small" in pages["results/t1.md"].text
     assert "make t2" in pages["results/t2.md"].text and "## At `small`" not in pages["results/t2.md"].text
+    t1 = pages["results/t1.md"].text
+    assert t1.index("## At `small`: evidence") < t1.index("## At `ci`: a regression fixture")  # the evidence first
 
     (root / "results/ci/t2.md").unlink()
     with pytest.raises(ClodsError, match=r"reproduce\.yaml:4: table 't2' has no committed file results/ci/t2\.md"):
