@@ -86,13 +86,13 @@ def test_a_key_for_a_plugin_that_takes_no_configuration_says_so() -> None:
 
 
 def test_ci_and_small_pin_the_stated_recipe_rule() -> None:
-    """docs/presets.md: every mesh model trains with MGN's noise gamma 0.1 at ci and small, except BSMS and HCMT at
-    small, which keep their authors' gamma (the plugin default)."""
+    """docs/presets.md: every mesh model trains with MGN's noise gamma 0.1 at ci and small, except BSMS, HCMT and
+    DHMP at small, which keep their authors' gamma (the plugin default)."""
     from clods_bench.plugins.simulators.learned.unet_configs import BsmsConfig, DhmpConfig, HcmtConfig
 
     ci, small = load_config("ci").sim_config, load_config("small").sim_config
     for sim in ("bsms", "hcmt", "dhmp"):
         assert ci[sim]["noise_gamma"] == 0.1, sim
-    assert small["dhmp"]["noise_gamma"] == 0.1 != DhmpConfig().noise_gamma
+    assert small["dhmp"]["noise_gamma"] == DhmpConfig().noise_gamma == 1.0
     assert small["bsms"]["noise_gamma"] == BsmsConfig().noise_gamma == 1.0
     assert small["hcmt"]["noise_gamma"] == HcmtConfig().noise_gamma == 1.0

@@ -129,7 +129,7 @@ class DhmpConfig(HierarchicalConfig):
     down to 0.1; Adam at 3e-4 decayed x0.794 an epoch down to 1e-6, batch 16, 50 epochs of 1000 trajectories of 399
     samples (1,250,000 steps), noise 0.003 with gamma 1. The decay is expressed per step (x0.1 every 20 % of the
     steps, plus a floor of 1e-6), and every sample gets noise where the code noises about 2 trajectories in 3. The
-    `ci` and `small` presets train it by MGN's recipe instead.
+    `ci` and `small` presets train it by MGN's recipe instead, but `small` keeps the authors' noise gamma.
     """
 
     batch_size: int = 16
