@@ -31,7 +31,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_data_digest)
     p = dsub.add_parser("import-flagsimple", help="convert the real FLAGSIMPLE release (meta.json + TFRecord)")
     p.add_argument("source", type=Path, help="directory with meta.json and <split>.tfrecord")
-    p.add_argument("--split", default="train")
+    p.add_argument("--split", default="train", help="which split's TFRecord in SOURCE to convert (default train)")
     p.add_argument("--limit", type=int, default=None, help="number of trajectories to convert")
     p.add_argument("--out", type=Path, required=True, help="dataset directory to write")
     p.set_defaults(func=cmd_data_import)
@@ -43,11 +43,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="obj/ply: one mesh file per frame; nerf: per trajectory a transforms.json (camera-to-world, OpenGL "
                         "axes) and a PNG folder per camera")  # fmt: skip
     p.add_argument("--meshes", choices=("obj", "ply", "none"), default="none", help="nerf: also write the meshes per frame")
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True, help="folder to write the files into (created if missing)")
     p.set_defaults(func=cmd_data_export)
     p = dsub.add_parser("export-meshes", help="write the meshes a run saved (seed_N/*.npz: initial, extracted, rollout) as OBJ/PLY sequences")
     p.add_argument("sample", type=Path, help="a run's mesh sample, e.g. runs/cdg/<label>/<id>/seed_0/extraction_meshes.npz")
-    p.add_argument("--format", choices=("obj", "ply"), default="obj")
+    p.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh file format, one file per frame (default obj)")
     p.add_argument("--out", type=Path, required=True, help="one folder per sequence (and truth/) is written here")
     p.set_defaults(func=cmd_data_export_meshes)
     p = dsub.add_parser("import-video", help="a dataset from your own multi-view captures (image folders or videos + transforms.json)")

@@ -15,14 +15,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("tables", help="tables (markdown, LaTeX, CSV) from run records, in the layout each task declares")
     p.add_argument("--runs", type=Path, nargs="+", default=[Path("runs")],
                    help="runs folder(s): the records of several (other machines, committed records) make one table")
-    p.add_argument("--out", type=Path, default=Path("tables"))
+    p.add_argument("--out", type=Path, default=Path("tables"), help="folder the tables are written into (default tables)")
     p.add_argument("--task", default="all", help="a task (cdg, nvs, stability, dvc, dvc_multi, extract, initial_mesh, a plugin's), or all (every task with records; default)")
     p.set_defaults(func=cmd_tables)
 
     p = sub.add_parser("report", help="HTML report (report/index.html): every table, error-vs-time and rollout plots, NVS grids, DVC media, "
                        "rollout videos and 3D views")  # fmt: skip
-    p.add_argument("--runs", type=Path, default=Path("runs"))
-    p.add_argument("--out", type=Path, default=Path("report"))
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="runs folder whose records the report shows (default runs)")
+    p.add_argument("--out", type=Path, default=Path("report"), help="folder of index.html and its figures and media (default report)")
     p.add_argument("--metric", default="unviewed/extrap/d_avg", help="CDG metric on the error axis (group/phase/stat)")
     p.add_argument("--bench", type=Path, default=Path("bench"), help="folder of `bench infer` results shown in the report when present (default bench)")
     watch = p.add_mutually_exclusive_group()

@@ -57,7 +57,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("seed-spread", help="seed-to-seed variation of every metric in the run records (justifies the tolerance)")
-    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="runs folder whose records, each with two or more seeds, are read (default runs)")
     p.add_argument("--task", help="only this task")
     p.add_argument("--csv", type=Path, help="also write the per-metric rows as CSV")
     p.set_defaults(func=cmd_seed_spread)

@@ -75,6 +75,13 @@ def test_every_command_is_on_the_page_with_exactly_the_arguments_its_help_lists(
         assert sections[command] == expected, command
 
 
+def test_every_option_of_every_command_says_what_it_does() -> None:
+    """An option without help shows as its bare name on the page and in `--help`; each one says what it takes."""
+    bare = [f"{command} {action.option_strings[-1]}" for command, parser in _commands() for action in parser._actions  # noqa: SLF001
+            if action.option_strings and action.help is None]  # fmt: skip
+    assert bare == []
+
+
 def test_placeholders_are_escaped_and_flags_never_break() -> None:
     page = cli_reference(build_parser())
     assert "(default: results/&lt;preset&gt;)" in page  # `reproduce --out`'s help, shown as typed
