@@ -169,7 +169,7 @@ def table_pages(root: Path) -> list[Generated]:
             fixture += ["The rows in `results/ci/manifest.json` (seconds as recorded by the run that made the table; work shared through "
                         "the caches counts where it was done first):", "", *rows, ""]  # fmt: skip
         mine = [e for e in small if e["table"] == t.id]
-        evidence = ["## At `small`: evidence, seed 0, in part", ""] if mine else []
+        evidence = ["## At `small`: evidence, in part (each table says over how many seeds)", ""] if mine else []
         for e in mine:
             stem = small_dir / e["file"]
             files = _copies(stem, "small", e["file"])

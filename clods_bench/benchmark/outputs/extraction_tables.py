@@ -7,7 +7,7 @@ from typing import Any
 
 import pandas as pd
 
-from clods_bench.benchmark.outputs.tables import fmt_cell
+from clods_bench.benchmark.outputs.tables import fmt_cell, seeds_phrase
 
 EXTRACT_COLUMNS = (  # (metric key, column): E-GT in metres (RMSE of extracted vs true mesh, frames after the first)
     ("egt_avg", "E-GT avg (m) ↓"),
@@ -58,5 +58,4 @@ def extract_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataF
 
 def extract_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """Caption of a mesh-extraction table: seeds and what E-GT (or the re-rendered PSNR) is."""
-    seeds = sorted({len(r["seeds"]) for r in records})
-    return f"Mesh extraction ({scene}, preset {preset}); mean ± std over {'/'.join(map(str, seeds))} extraction seeds. {notes[0]}."
+    return f"Mesh extraction ({scene}, preset {preset}); mean ± std over {seeds_phrase(records, 'extraction seeds')}. {notes[0]}."

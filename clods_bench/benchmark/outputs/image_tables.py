@@ -7,7 +7,7 @@ from typing import Any
 
 import pandas as pd
 
-from clods_bench.benchmark.outputs.tables import fmt_cell
+from clods_bench.benchmark.outputs.tables import fmt_cell, seeds_phrase
 
 NVS_COLUMNS = (  # (metric key, column, scale, digits): the paper's Table 3 reports SSIM x10 and LPIPS x1000
     ("psnr", "PSNR (dB) ↑", 1.0, 4),
@@ -71,8 +71,7 @@ def nvs_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
 
 
 def _image_caption(what: str, scored: str, per_image: str, scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
-    seeds = sorted({len(r["seeds"]) for r in records})
-    text = f"{what} ({scene}, preset {preset}); {scored}; mean ± std over {'/'.join(map(str, seeds))} seeds; {per_image} ms per image (one view, one frame)."
+    text = f"{what} ({scene}, preset {preset}); {scored}; mean ± std over {seeds_phrase(records)}; {per_image} ms per image (one view, one frame)."
     sources = sorted({src for r in records for s in r.get("per_seed", {}).values() if (src := s.get("extra", {}).get("lpips_source"))})
     if sources:
         text += " LPIPS: AlexNet v0.1, weights from " + " and ".join(sources) + "."

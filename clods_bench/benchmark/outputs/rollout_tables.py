@@ -9,7 +9,7 @@ from typing import Any
 
 import pandas as pd
 
-from clods_bench.benchmark.outputs.tables import fmt_cell
+from clods_bench.benchmark.outputs.tables import fmt_cell, seeds_phrase
 from clods_bench.benchmark.scoring.metrics import GROUPS, PHASES, STATS
 
 GROUP_NAMES = {"viewed": "Viewed", "unviewed": "Unviewed"}
@@ -76,9 +76,8 @@ def cdg_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.DataFrame
 
 def cdg_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """Caption of a CDG table: what is scored and over how many seeds."""
-    seeds = sorted({len(r["seeds"]) for r in records})
     return (
-        f"CDG rollout RMSE ({scene}, preset {preset}); mean ± std over {'/'.join(map(str, seeds))} seeds; "
+        f"CDG rollout RMSE ({scene}, preset {preset}); mean ± std over {seeds_phrase(records)}; "
         "Viewed = second half of the training trajectories, Unviewed = test trajectories."
     )
 
@@ -156,8 +155,9 @@ def stability_frame(records: list[dict[str, Any]]) -> tuple[pd.DataFrame, pd.Dat
 
 
 def stability_caption(scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
-    """Caption of a stability table (one per preset, its rows on several scenes)."""
+    """Caption of a stability table (one per preset, its rows on several scenes); rows on fewer seeds are named."""
+    over = "seeds" if len({len(r["seeds"]) for r in records}) <= 1 else seeds_phrase(records)
     return (
         f"Long-rollout stability (preset {preset}); RMSE over the frames with ground truth and max edge strain "
-        "|l/l0 - 1|: mean ± std over seeds; divergence = first frame with NaN/Inf, strain or kinetic energy over threshold."
+        f"|l/l0 - 1|: mean ± std over {over}; divergence = first frame with NaN/Inf, strain or kinetic energy over threshold."
     )

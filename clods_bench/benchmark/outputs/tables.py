@@ -88,11 +88,24 @@ def write_table(stem: Path, caption: str, display: pd.DataFrame, numeric: pd.Dat
     return [stem.with_suffix(s) for s in (".md", ".tex", ".csv")]
 
 
+def seeds_phrase(records: list[dict[str, Any]], unit: str = "seeds") -> str:
+    """'2 seeds' when every row has as many; else the most rows' count and the rows with another one named, so that
+    a row standing on fewer seeds than its neighbours shows in the caption ('2 seeds (1: MGN*, HCMT)')."""
+    counts = [len(r["seeds"]) for r in records]
+    if len(set(counts)) <= 1:
+        return f"{counts[0] if counts else 0} {unit}"
+    usual = max(sorted(set(counts), reverse=True), key=counts.count)
+    others: dict[int, list[str]] = {}
+    for rec, n in zip(records, counts):
+        if n != usual:
+            others.setdefault(n, []).append(str(rec["label"]))
+    return f"{usual} {unit} (" + "; ".join(f"{n}: {', '.join(sorted(labels))}" for n, labels in sorted(others.items())) + ")"
+
+
 def default_caption(task: str, scene: str, preset: str, records: list[dict[str, Any]], notes: list[str]) -> str:
     """The caption of a table whose layout gives none: task, scene, preset, seeds, then the notes."""
-    seeds = "/".join(str(n) for n in sorted({len(r["seeds"]) for r in records}))
     where = f"{scene}, preset {preset}" if scene else f"preset {preset}"
-    return f"{task} ({where}); mean ± std over {seeds} seeds." + "".join(f" {n}." for n in notes)
+    return f"{task} ({where}); mean ± std over {seeds_phrase(records)}." + "".join(f" {n}." for n in notes)
 
 
 def write_tables(runs_dir: Path | Sequence[Path], out_dir: Path, task: str = "cdg", registry: Registry | None = None) -> list[Path]:

@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 
 from clods_bench.benchmark.core.registry import default_registry
-from clods_bench.benchmark.outputs.tables import fmt_cell, metric_frame, write_tables
+from clods_bench.benchmark.outputs.rollout_tables import cdg_caption, stability_caption
+from clods_bench.benchmark.outputs.tables import fmt_cell, metric_frame, seeds_phrase, write_tables
 from clods_bench.benchmark.running.records import RECORD_FILE
 from clods_bench.benchmark.running.runner import run_task
 from clods_bench.errors import ClodsError
@@ -65,6 +66,19 @@ def test_no_records_is_a_clear_error(tmp_path: Path) -> None:
         write_tables(tmp_path / "runs", tmp_path / "t")
     with pytest.raises(ClodsError, match="not found"):
         write_tables(tmp_path / "nope", tmp_path / "t")
+
+
+def test_a_row_on_fewer_seeds_is_named_in_the_caption() -> None:
+    """Equal seed counts read as before ('2 seeds'); a row with another count is named with it, so a table mixing a
+    two-seed mean with one-seed rows says which rows are which."""
+    rows = [{"label": "MGN", "seeds": [0, 1]}, {"label": "HCMT", "seeds": [0]}, {"label": "BSMS", "seeds": [0, 1]},
+            {"label": "DHMP", "seeds": [0]}, {"label": "Frozen", "seeds": [0, 1]}, {"label": "X", "seeds": [0, 1, 2]}]  # fmt: skip
+    assert seeds_phrase(rows[:1] + rows[2:3]) == "2 seeds"
+    assert seeds_phrase(rows) == "2 seeds (1: DHMP, HCMT; 3: X)"
+    assert seeds_phrase(rows[1:2], "extraction seeds") == "1 extraction seeds"
+    assert "over 2 seeds (1: HCMT);" in cdg_caption("flag", "small", rows[:3], [])
+    assert "mean ± std over seeds;" in stability_caption("", "ci", rows[:1] + rows[2:3], [])  # the committed ci wording
+    assert "over 2 seeds (1: HCMT);" in stability_caption("", "small", rows[:3], [])
 
 
 def test_fmt_cell() -> None:
